@@ -1,0 +1,28 @@
+"""nanofrictor.identify: simulate, analyse and identify MEMS stick-slip friction runs."""
+
+from .laws import LAWS, get_law
+from .model import Model
+from .params import (
+    PARAMETER_SETS,
+    SPECS,
+    ParameterError,
+    normal_load_from_voltage,
+    parameter_set,
+)
+from .simulation import RunConditions, SimulationOptions, SimulationResult, simulate, simulate_run
+
+__all__ = [
+    "LAWS",
+    "get_law",
+    "Model",
+    "PARAMETER_SETS",
+    "SPECS",
+    "ParameterError",
+    "normal_load_from_voltage",
+    "parameter_set",
+    "RunConditions",
+    "SimulationOptions",
+    "SimulationResult",
+    "simulate",
+    "simulate_run",
+]
