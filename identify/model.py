@@ -9,6 +9,8 @@ null values (``identify.params`` kind ``effect``):
     motion         mb·ẍ   = F_s(xp − x) − sgn(ẋ)·μ·N − (c + c_extra)·ẋ
     aging          d(state)/dt from the selected :mod:`identify.laws` law
     at rest        held while |F_s| ≤ (ψ + μ_topo)·N; the state ages in closed form
+    stick option   v_stick > 0: a block slower than v_stick is held while
+                   |F_s| ≤ (ψ + μ_topo + A·ln(1 + v_stick/vc))·N (a Karnopp band)
 
 Every piece is a backend-neutral method (``ops=numpy`` for numbers, ``ops=casadi`` for
 symbols), so the closed-form stick phases, the symbolic slip dynamics and the
@@ -130,13 +132,24 @@ class Model:
         """Static capacity per unit load at rest: ψ(state) + μ_topo(x)."""
         return self.law.static_coefficient(state, P, ops) + self.topography(x, P, ops)
 
+    def hold_coefficient(self, state, x, P, ops=np):
+        """Capacity per unit load of a block at rest.
+
+        As written (v_stick = 0) it is the static part ψ + μ_topo. With the stick-threshold
+        option it is the friction at the edge of the stick band, ψ + μ_topo +
+        A·ln(1 + v_stick/vc): a Karnopp band in which a block slower than v_stick is held
+        while the spring force stays within what friction can give at v_stick, so the
+        capacity is continuous across the band edge.
+        """
+        return self.static_coefficient(state, x, P, ops) + P["A"] * ops.log(1 + P["v_stick"] / P["vc"])
+
     def friction_coefficient(self, state, speed, x, P, ops=np):
         """μ = ψ + μ_topo + A·ln(1 + |ẋ|/vc) (Eq. 18)."""
         return self.static_coefficient(state, x, P, ops) + P["A"] * ops.log(1 + speed / P["vc"])
 
     def holds(self, e, state, x, P, slack: float = 0.0):
         """Whether a block at rest stays put: |F_s(e)| ≤ capacity (NumPy, vectorised)."""
-        cap = self.static_coefficient(state, x, P) * self.normal_load(P)
+        cap = self.hold_coefficient(state, x, P) * self.normal_load(P)
         return np.abs(self.spring_force(e, P)) <= cap * (1 + slack)
 
 

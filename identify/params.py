@@ -138,8 +138,8 @@ _PLATFORM = [
 # always carries them, so one compiled model serves every candidate of the diagnosis.
 _EFFECTS = [
     _s("v_stick", "m/s", 0.0, 0.0, 1.0, 1e-4, kind="effect",
-       description="stick threshold: once a sliding block has been faster than this, it is "
-       "held as soon as it is slower again (0 = the equations as written)",
+       description="stick threshold (Karnopp band): a block slower than this is held while the "
+       "spring force is within F0(ψ, v_stick); 0 = the equations as written",
        display_unit="µm/s", display_factor=1e6),
     _s("c_extra", "N s/m", 0.0, -1e-3, 1e-2, 1e-6, kind="effect",
        description="extra viscous damping added to c", display_unit="µN s/m", display_factor=1e6),

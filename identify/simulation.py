@@ -502,7 +502,7 @@ class _Runner:
         return self.model.spring_force(e, self.P)
 
     def capacity(self, state, x):
-        return self.model.static_coefficient(state, x, self.P) * self.N
+        return self.model.hold_coefficient(state, x, self.P) * self.N
 
     def integrator(self, plugin: str, M: int, grid: np.ndarray | None = None):
         key = (plugin, M, None if grid is None else len(grid))

@@ -1,0 +1,8 @@
+"""``python -m identify``: see :mod:`identify.cli`."""
+
+import sys
+
+from .cli import main
+
+if __name__ == "__main__":
+    sys.exit(main())

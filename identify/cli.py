@@ -1,0 +1,202 @@
+"""Command line: ``python -m identify <command> ...``, a thin layer over the library.
+
+Every command is a function ``_cmd_<name>(args) -> int``; :func:`main` turns bad input
+(``ValueError`` and its subclasses, missing files) into one ``error:`` line on stderr
+and exit status 2, without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import warnings
+from pathlib import Path
+from typing import Sequence
+
+__all__ = ["main", "build_parser"]
+
+log = logging.getLogger("identify")
+
+
+class CLIError(ValueError):
+    """Bad command-line input."""
+
+
+def _parse_params(items: Sequence[str] | None, flag: str = "--param") -> dict[str, float]:
+    """``["tau=0.05", "A=0"]`` -> {"tau": 0.05, "A": 0.0}."""
+    out: dict[str, float] = {}
+    for item in items or []:
+        for part in item.split(","):
+            if not part.strip():
+                continue
+            if "=" not in part:
+                raise CLIError(f"{flag} {part!r}: expected NAME=VALUE")
+            name, value = part.split("=", 1)
+            try:
+                out[name.strip()] = float(value)
+            except ValueError:
+                raise CLIError(f"{flag} {part!r}: {value!r} is not a number") from None
+    return out
+
+
+def _write_json(path: str | Path, data: dict) -> Path:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
+    return p
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+# ----------------------------------------------------------------------------- simulate
+def _add_simulate(sub):
+    p = sub.add_parser(
+        "simulate", help="simulate one run and write its camera trace",
+        description="Simulate one run of the platform (hybrid stick/slip model) and write the "
+        "camera trace as DIR/NAME.csv + DIR/NAME.json (shared trace format v1).",
+    )
+    p.add_argument("--coating", default="FOTAS", help="parameter preset (Table II): FOTAS or OTS")
+    p.add_argument("--spring-constant", type=float, required=True, metavar="K",
+                   help="spring constant k in N/m (= µN/µm)")
+    load = p.add_mutually_exclusive_group(required=True)
+    load.add_argument("--normal-load-uN", type=float, help="normal load Nb in µN")
+    load.add_argument("--block-voltage-V", type=float, help="block voltage Vb in V (Eqs. 5-6)")
+    p.add_argument("--fp", type=float, required=True, help="puller step frequency in Hz")
+    p.add_argument("--travel-um", type=float, required=True, help="puller travel in µm")
+    p.add_argument("--law", default="exponential", help="aging law: exponential, logarithmic, logistic")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE",
+                   help="override a model parameter, SI (repeatable, e.g. --param tau=0.05)")
+    p.add_argument("--stick-speed", type=float, default=None, metavar="M_PER_S",
+                   help="stick-threshold option v_stick in m/s (default 0: equations as written)")
+    p.add_argument("--noise-nm", type=float, default=0.0, help="camera noise, standard deviation in nm")
+    p.add_argument("--seed", type=int, default=None, help="seed of the noise")
+    p.add_argument("--frame-rate", type=float, default=None, help="frames per second (default 2 per step)")
+    p.add_argument("--frame-phase", type=float, default=0.5,
+                   help="frame times (j + phase)/frame_rate; 0.5 = middle of each sub-interval")
+    p.add_argument("--integrator", default="rosenbrock", choices=("rosenbrock", "idas"),
+                   help="engine for moving phases (see README)")
+    p.add_argument("--out", required=True, metavar="DIR/NAME", help="output stem of the trace files")
+    p.add_argument("--plot", action="store_true", help="also write DIR/NAME_fig13.png/.pdf (paper's Fig. 13)")
+    p.add_argument("--json", metavar="SUMMARY.json", help="write a JSON summary of the run")
+    p.set_defaults(func=_cmd_simulate)
+
+
+def _cmd_simulate(args) -> int:
+    from .simulation import SimulationOptions, simulate
+
+    params = _parse_params(args.param)
+    stem = Path(args.out)
+    if args.json and Path(args.json).resolve() == stem.with_suffix(".json").resolve():
+        raise CLIError(f"--json {args.json}: that is the trace's own metadata file; choose another name")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UserWarning)
+        res = simulate(
+            args.coating, spring_constant_N_per_m=args.spring_constant,
+            normal_load_uN=args.normal_load_uN, block_voltage_V=args.block_voltage_V,
+            step_frequency_Hz=args.fp, travel_um=args.travel_um, law=args.law, params=params,
+            stick_speed_m_per_s=args.stick_speed, options=SimulationOptions(integrator=args.integrator),
+        )
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    trace = res.sample(frame_rate_Hz=args.frame_rate, frame_phase=args.frame_phase,
+                       noise_nm=args.noise_nm, seed=args.seed, name=stem.name,
+                       metadata=({"block_voltage_V": args.block_voltage_V} if args.block_voltage_V else None))
+    if args.block_voltage_V is not None:
+        trace.metadata.pop("normal_load_uN", None)
+    csv_path, json_path = trace.write(stem)
+    print(res.report())
+    print(f"wrote {csv_path} and {json_path} ({len(trace.time_s)} frames)")
+    if args.plot:
+        from .plots import plot_simulation, save_figure
+
+        axes = plot_simulation(res)
+        paths = save_figure(axes[0].figure, stem.parent / f"{stem.name}_fig13")
+        print("wrote " + ", ".join(map(str, paths)))
+    if args.json:
+        summary = res.summary()
+        summary["trace"] = {"csv": str(csv_path), "json": str(json_path), "frames": len(trace.time_s),
+                            "noise_nm": args.noise_nm, "seed": args.seed}
+        print(f"wrote {_write_json(args.json, summary)}")
+    return 0 if res.completed else 1
+
+
+# ----------------------------------------------------------------------------- regimes
+def _add_regimes(sub):
+    p = sub.add_parser("regimes", help="regime map (stick-slip/stepping/creep) over Nb and fp",
+                       description="Simulate a grid of (Nb, fp) runs for one spring and classify each.")
+    p.add_argument("--coating", default="FOTAS")
+    p.add_argument("--spring-constant", type=float, default=2.13)
+    p.add_argument("--loads-uN", type=float, nargs="+", default=[1, 2, 5, 10, 20, 30, 60])
+    p.add_argument("--fp", type=float, nargs="+", default=[10, 30, 100, 300, 1000, 3000, 10000])
+    p.add_argument("--travel-um", type=float, default=20.0)
+    p.add_argument("--stick-speed", type=float, default=0.0)
+    p.add_argument("--json", metavar="OUT.json")
+    p.add_argument("--plot", metavar="FILE")
+    p.set_defaults(func=_cmd_regimes)
+
+
+def _cmd_regimes(args) -> int:
+    from .regimes import regime_map
+
+    def progress(i, n):
+        print(f"\r  {i}/{n} runs", end="", file=sys.stderr, flush=True)
+        if i == n:
+            print(file=sys.stderr)
+
+    m = regime_map(args.coating, args.spring_constant, args.loads_uN, args.fp, args.travel_um,
+                   args.stick_speed, progress=progress)
+    print(m.table())
+    if args.json:
+        print(f"wrote {_write_json(args.json, m.to_json())}")
+    if args.plot:
+        from .plots import save_figure
+
+        ax = m.plot()
+        print("wrote " + ", ".join(map(str, save_figure(ax.figure, args.plot))))
+    return 0
+
+
+# ----------------------------------------------------------------------------- main
+_COMMANDS = [_add_simulate, _add_regimes]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m identify",
+        description="nanofrictor: simulate, analyse and identify MEMS stick-slip friction runs.",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for add in _COMMANDS:
+        add(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
