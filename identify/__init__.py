@@ -10,6 +10,7 @@ from .params import (
     parameter_set,
 )
 from .simulation import RunConditions, SimulationOptions, SimulationResult, simulate, simulate_run
+from .traces import Trace, TraceFormatError, TraceSet, load_traces
 
 __all__ = [
     "LAWS",
@@ -25,4 +26,8 @@ __all__ = [
     "SimulationResult",
     "simulate",
     "simulate_run",
+    "Trace",
+    "TraceFormatError",
+    "TraceSet",
+    "load_traces",
 ]

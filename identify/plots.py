@@ -66,7 +66,7 @@ def plot_simulation(result, axes: Sequence | None = None, t_window: tuple[float,
     plt = _plt()
     if axes is None:
         fig, axes = plt.subplots(5, 1, figsize=(7, 10), sharex=True, constrained_layout=True)
-    ev = result.events
+    ev = result.slips
     c = result.conditions
     if t_window is None:
         if len(ev) >= 2:

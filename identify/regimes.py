@@ -110,10 +110,11 @@ def regime_map(
                     stick_speed_m_per_s=stick_speed_m_per_s, options=SimulationOptions(record=False),
                 )
                 regimes[i, j] = r.regime
-                n[i, j] = len(r.events)
-                if len(r.events):
-                    slip[i, j] = np.mean(r.events["slip_length_m"]) * 1e6
-                    peak[i, j] = np.mean(r.events["peak_elongation_m"]) * 1e6
+                sl = r.slips
+                n[i, j] = len(sl)
+                if len(sl):
+                    slip[i, j] = np.mean(sl["slip_length_m"]) * 1e6
+                    peak[i, j] = np.mean(sl["peak_elongation_m"]) * 1e6
                 wall[i, j] = r.wall_time_s
             except Exception as err:  # one bad point never sinks the map
                 regimes[i, j] = "error"

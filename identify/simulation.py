@@ -57,6 +57,7 @@ log = logging.getLogger(__name__)
 
 MAX_TRAVEL_M = 100e-6  # nanotractor travel (Table I)
 REGIMES = ("stick-slip", "stepping", "creep", "no-slip")
+MIN_SLIP_STEPS = 0.1  # a moving phase is a slip when it moves at least this many steps
 _CHUNK_POINTS = 16  # output points per IDAS sub-interval
 _HOLD_SLACK = 1e-6  # relative force tolerance of the hold test at a located stop
 
@@ -190,6 +191,9 @@ class EventTable:
     def to_dict(self) -> dict[str, list]:
         return {k: v.tolist() for k, v in self.data.items()}
 
+    def select(self, mask) -> "EventTable":
+        return EventTable({k: v[mask] for k, v in self.data.items()})
+
     @classmethod
     def from_rows(cls, rows: list[dict]) -> "EventTable":
         data = {}
@@ -244,6 +248,18 @@ class SimulationResult:
     coating: str | None = None
 
     # ------------------------------------------------------------- derived numbers
+    @property
+    def slips(self) -> EventTable:
+        """The moving phases that moved the block at least a tenth of a puller step.
+
+        ``events`` also holds creep nucleations that failed (the block moved picometres to
+        nanometres and stopped again as its contact aged); no camera can see those.
+        """
+        ev = self.events
+        if not len(ev):
+            return ev
+        return ev.select(np.abs(ev["slip_length_m"]) >= MIN_SLIP_STEPS * self.step)
+
     @property
     def step(self) -> float:
         return self.model.step(self._P)
@@ -366,10 +382,11 @@ class SimulationResult:
     # ------------------------------------------------------------- reporting
     def summary(self) -> dict:
         """The JSON summary of the CLI (SI values, units in the keys)."""
-        ev = self.events
+        ev = self.slips
         slips = ev["slip_length_m"] if len(ev) else np.array([])
         return dict(
             n_slips=int(len(ev)),
+            n_moving_phases=int(len(self.events)),
             regime=self.regime,
             completed=self.completed,
             slip_lengths_um=(slips * 1e6).round(6).tolist(),
@@ -435,14 +452,17 @@ def classify(events: EventTable, step: float, moving_fraction: float) -> str:
     """The run's regime.
 
     ``creep`` when the block is moving more than half the time after its first slip;
-    else ``stepping`` when the median slip is shorter than two puller steps (the block
-    follows the puller step by step); else ``stick-slip``; ``no-slip`` without slips.
+    else ``stepping`` when the median slip (phases moving at least 0.1 step) is shorter
+    than two puller steps (the block follows the puller step by step); else
+    ``stick-slip``; ``no-slip`` without slips.
     """
-    if not len(events):
-        return "no-slip"
     if moving_fraction > 0.5:
         return "creep"
-    if np.median(np.abs(events["slip_length_m"])) < 2 * step:
+    slips = np.abs(events["slip_length_m"]) if len(events) else np.array([])
+    slips = slips[slips >= MIN_SLIP_STEPS * step]
+    if not slips.size:
+        return "no-slip"
+    if np.median(slips) < 2 * step:
         return "stepping"
     return "stick-slip"
 
