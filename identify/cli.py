@@ -140,7 +140,8 @@ def _add_regimes(sub):
     p.add_argument("--spring-constant", type=float, default=2.13)
     p.add_argument("--loads-uN", type=float, nargs="+", default=[1, 2, 5, 10, 20, 30, 60])
     p.add_argument("--fp", type=float, nargs="+", default=[10, 30, 100, 300, 1000, 3000, 10000])
-    p.add_argument("--travel-um", type=float, default=20.0)
+    p.add_argument("--travel-um", type=float, default=None,
+                   help="travel per run (default: enough for the first loading and a few slips)")
     p.add_argument("--stick-speed", type=float, default=0.0)
     p.add_argument("--json", metavar="OUT.json")
     p.add_argument("--plot", metavar="FILE")

@@ -36,7 +36,7 @@ class RegimeMap:
     coating: str
     spring_constant_N_per_m: float
     stick_speed_m_per_s: float
-    travel_um: float
+    travel_um: float | None
     normal_loads_uN: np.ndarray
     step_frequencies_Hz: np.ndarray
     regimes: np.ndarray
@@ -81,7 +81,7 @@ def regime_map(
     spring_constant_N_per_m: float = 2.13,
     normal_loads_uN: Sequence[float] = (1, 2, 5, 10, 20, 30, 60),
     step_frequencies_Hz: Sequence[float] = (10, 30, 100, 300, 1000, 3000, 10000),
-    travel_um: float = 20.0,
+    travel_um: float | None = None,
     stick_speed_m_per_s: float = 0.0,
     law: str = "exponential",
     params: dict | None = None,
@@ -89,8 +89,13 @@ def regime_map(
 ) -> RegimeMap:
     """Simulate every (Nb, fp) of the grid and classify it.
 
-    A failed run is marked ``error`` (and listed) rather than stopping the map.
+    ``travel_um`` None gives each load enough travel for the first loading to μmax plus
+    a few slips: max(20 µm, 3·μmax·Nb/k), at most the nanotractor's 100 µm. A failed
+    run is marked ``error`` (and listed) rather than stopping the map.
     """
+    from .params import parameter_set
+
+    mu_top = parameter_set(coating, params or {}).get("mu_max", 0.8)
     loads = np.asarray(normal_loads_uN, float)
     freqs = np.asarray(step_frequencies_Hz, float)
     shape = (len(loads), len(freqs))
@@ -104,9 +109,10 @@ def regime_map(
     for i, nb in enumerate(loads):
         for j, fp in enumerate(freqs):
             try:
+                tr = travel_um if travel_um else min(100.0, max(20.0, 3 * mu_top * nb / spring_constant_N_per_m))
                 r = simulate(
                     coating, spring_constant_N_per_m=spring_constant_N_per_m, normal_load_uN=nb,
-                    step_frequency_Hz=fp, travel_um=travel_um, law=law, params=params,
+                    step_frequency_Hz=fp, travel_um=tr, law=law, params=params,
                     stick_speed_m_per_s=stick_speed_m_per_s, options=SimulationOptions(record=False),
                 )
                 regimes[i, j] = r.regime

@@ -468,10 +468,21 @@ def classify(events: EventTable, step: float, moving_fraction: float) -> str:
 
 
 # ----------------------------------------------------------------------------- engine
+def _parabolic_peak(y: np.ndarray) -> float:
+    """Maximum of equally spaced samples, refined by the parabola through the top three."""
+    i = int(np.argmax(y))
+    if 0 < i < len(y) - 1:
+        a, b, c = y[i - 1], y[i], y[i + 1]
+        den = a - 2 * b + c
+        if den < 0:
+            return float(b - 0.125 * (a - c) ** 2 / den)
+    return float(y[i])
+
+
 def _interval_grid(K: int) -> np.ndarray:
     """Normalised output points inside one step interval: half geometric (slips start
     at the trigger, so the start needs resolution), half uniform; the last is 1."""
-    geo = np.geomspace(1e-4, 1.0, K // 2, endpoint=False)
+    geo = np.geomspace(1e-6, 1.0, K // 2, endpoint=False)
     uni = np.linspace(0.0, 1.0, K - K // 2 + 1)[1:]
     return np.unique(np.concatenate([geo, uni]))
 
@@ -711,26 +722,27 @@ class _Runner:
         tol = 1e-9 + 1e-7 * abs(ga)
         t_lo, X_lo, g_lo = ta, Xa, ga
         t_hi, X_hi, g_hi = tb, Xb, g_and_slope(Xb)[0]
+        w_lo, w_hi = g_lo, g_hi  # interpolation weights (Illinois halves them), not values
         side = 0
-        for _ in range(30):
+        for _ in range(40):
             if g_lo <= tol:
                 return t_lo, X_lo
-            if g_hi >= -tol or abs(X_hi[0] - X_lo[0]) * LENGTH_UNIT < 1e-12:
+            if g_hi >= -tol or abs(X_hi[0] - X_lo[0]) * LENGTH_UNIT < 1e-13:
                 return t_hi, X_hi
-            theta = g_lo / (g_lo - g_hi)
+            theta = w_lo / (w_lo - w_hi)
             dt = (t_hi - t_lo) * min(max(theta, 1e-6), 1 - 1e-6)
             X = np.array(F_one(x0=X_lo, p=self.p(s, dt), u=xp_um)["xf"]).ravel()
             self.calls += 1
             g = g_and_slope(X)[0]
             if g > 0:
-                t_lo, X_lo, g_lo = t_lo + dt, X, g
+                t_lo, X_lo, g_lo, w_lo = t_lo + dt, X, g, g
                 if side == 1:
-                    g_hi *= 0.5
+                    w_hi *= 0.5
                 side = 1
             else:
-                t_hi, X_hi, g_hi = t_lo + dt, X, g
+                t_hi, X_hi, g_hi, w_hi = t_lo + dt, X, g, g
                 if side == -1:
-                    g_lo *= 0.5
+                    w_lo *= 0.5
                 side = -1
         return t_hi, X_hi
 
@@ -780,7 +792,7 @@ class _Runner:
             if rep is not None:
                 i, rt, rX = rep
                 if rX.size:
-                    X[7] = max(X[7], float(np.max(np.abs(rX[1]))))
+                    X[7] = max(X[7], _parabolic_peak(np.abs(rX[1])))
                     rec_t[i + 1:i + 1] = rt.tolist()
                     rec_X[i + 1:i + 1] = list(rX.T)
         if self.opts.integrator == "idas" and rec_X:
@@ -815,16 +827,15 @@ def simulate_run(
     move = r.move
     completed = True
     while True:
-        # a block that cannot be held at the start moves at once
-        if rows or not (np.abs(r.spring(-x)) > r.capacity(z, x)) or t > 0:
+        if not rows and np.abs(r.spring(-x)) > r.capacity(z, x):
+            n, t_trig, z_trig = 0, 0.0, z  # a block that cannot be held at t = 0 moves at once
+        else:
             n = r.next_trigger(t, x, z, n_done)
             if n is None:
                 break
             t_trig = r.step_time(n)
             z_trig = law.rest(z, t_trig - t, P)
             n_done = n
-        else:
-            t_trig, z_trig = 0.0, z
         e_trig = n_done * r.dx - x
         direction = float(np.sign(r.spring(e_trig))) or 1.0
         rest = t_trig - t
