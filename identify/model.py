@@ -38,6 +38,7 @@ from typing import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
+from .compiled import compiled
 from .laws import AgingLaw, Exponential, get_law
 from .params import SPECS
 
@@ -238,6 +239,7 @@ def slip_integrator(
     reltol: float = 1e-7,
     abstol: float = 1e-9,
     events: bool | None = None,
+    calc_ic: bool = True,
 ) -> ca.Function:
     """A cached integrator of the slip DAE over the normalised ``grid`` (in (0, 1]).
 
@@ -255,8 +257,9 @@ def slip_integrator(
         dae["zero"] = d["zero"]
         opts.update(transition=_transition(model), max_events=10_000_000, event_tol=1e-12)
     if plugin == "idas":
-        opts.update(calc_ic=True, max_num_steps=200_000, disable_internal_warnings=True)
+        opts.update(calc_ic=calc_ic, max_num_steps=200_000, disable_internal_warnings=True)
     elif plugin == "rosenbrock":
         opts.update(max_num_steps=200_000)
     grid = [float(g) for g in grid]
-    return ca.integrator(f"slip_{plugin}", plugin, dae, 0.0, grid, opts)
+    return compiled(lambda extra: ca.integrator(f"slip_{plugin}", plugin, dae, 0.0, grid, {**opts, **extra}),
+                    tag=f"slip_{plugin}_{len(grid)}")

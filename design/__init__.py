@@ -1,0 +1,97 @@
+"""nanofrictor.design: springs, Table I constraints and spring-set design.
+
+Modules
+-------
+springs
+    k(w) of the folded fixed-guided suspension (Eq. (1)), :class:`Suspension`, the paper's
+    springs, drawn/effective widths.
+constraints
+    Table I as named :class:`Constraint` objects; allowed Nb range of a spring.
+spring_set
+    The fewest springs covering a load range for every μ, robust to the etch bias
+    (CasADi + Ipopt), judged side by side with the paper's set.
+plots
+    Fig. 3 (the Table I region) with spring sets drawn on it.
+cli
+    ``python -m design springs ...``.
+"""
+
+from .constraints import (
+    TABLE_I,
+    Constraint,
+    ConstraintViolation,
+    Sense,
+    Violation,
+    allowed_load_range,
+    check,
+    elongation_window,
+    require,
+    robust_load_range,
+)
+from .plots import plot_design, plot_feasible_region, plot_spring_set
+from .spring_set import (
+    DEFAULT_SUSPENSIONS,
+    MAX_SPRINGS,
+    Attempt,
+    InfeasibleDesignError,
+    SpringSet,
+    SpringSetResult,
+    coverable_load_range,
+    design_spring_set,
+    paper_spring_set,
+)
+from .springs import (
+    ETCH_BIAS_UM,
+    LONG_SUSPENSION,
+    PAPER_SPRING_CONSTANTS,
+    PAPER_SUSPENSION,
+    PAPER_WIDTHS_UM,
+    SpringDesign,
+    Suspension,
+    drawn_width_um,
+    effective_width_um,
+    paper_springs,
+    spring_constant,
+    width_for_spring_constant,
+)
+
+__all__ = [
+    # springs
+    "ETCH_BIAS_UM",
+    "LONG_SUSPENSION",
+    "PAPER_SPRING_CONSTANTS",
+    "PAPER_SUSPENSION",
+    "PAPER_WIDTHS_UM",
+    "SpringDesign",
+    "Suspension",
+    "drawn_width_um",
+    "effective_width_um",
+    "paper_springs",
+    "spring_constant",
+    "width_for_spring_constant",
+    # constraints
+    "TABLE_I",
+    "Constraint",
+    "ConstraintViolation",
+    "Sense",
+    "Violation",
+    "allowed_load_range",
+    "check",
+    "elongation_window",
+    "require",
+    "robust_load_range",
+    # spring sets
+    "DEFAULT_SUSPENSIONS",
+    "MAX_SPRINGS",
+    "Attempt",
+    "InfeasibleDesignError",
+    "SpringSet",
+    "SpringSetResult",
+    "coverable_load_range",
+    "design_spring_set",
+    "paper_spring_set",
+    # plots
+    "plot_design",
+    "plot_feasible_region",
+    "plot_spring_set",
+]

@@ -1,0 +1,5 @@
+"""``python -m design``: see :mod:`design.cli`."""
+
+from .cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,161 @@
+"""Command line of the design package: ``python -m design <command> ...``.
+
+A thin layer over the library: one ``_cmd_<name>(args) -> int`` per subcommand, registered
+in :func:`build_parser`. Bad input (any ValueError, or an unwritable output file) prints
+one line ``error: <message>`` to stderr and returns 2; no traceback.
+
+Commands
+--------
+springs
+    Design the fewest springs covering a normal-load range (:func:`design_spring_set`),
+    print the report beside the paper's set, write JSON and optionally a Fig. 3 plot.
+ranges, experiment
+    Placeholders (not implemented yet; exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Callable, Sequence
+
+__all__ = ["main", "build_parser"]
+
+_PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+class _UsageError(ValueError):
+    """A command-line usage error (raised instead of argparse's exit)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, no usage dump, exit code 2 via main
+        raise _UsageError(f"{self.prog}: {message}")
+
+
+# --------------------------------------------------------------------------------------
+# springs
+# --------------------------------------------------------------------------------------
+def _add_springs(sub) -> None:
+    p = sub.add_parser(
+        "springs",
+        help="design the fewest springs covering a normal-load range (Table I, Fig. 3)",
+        description=(
+            "Fewest springs covering a normal-load range for every μ in [0.1, 0.9], robust "
+            "to the etch bias; the paper's four springs are reported under the same measures."
+        ),
+    )
+    p.add_argument(
+        "--load-range-uN", nargs=2, type=float, metavar=("LOW", "HIGH"), default=None,
+        help="normal-load range to cover (µN); default: Table I's 0.01-452 µN with the low "
+        "end raised to the lowest load reachable at this etch bias",
+    )
+    p.add_argument("--n-springs", type=int, default=None, metavar="N",
+                   help="fix the number of springs (error if N cannot cover the range)")
+    p.add_argument("--etch-bias-um", type=float, default=None, metavar="B",
+                   help="etch-bias uncertainty per edge (µm); realised widths w ± 2B (default 0.1)")
+    p.add_argument("--max-springs", type=int, default=None, metavar="N",
+                   help="largest number of springs tried (default 8)")
+    p.add_argument("--json", type=Path, default=None, metavar="OUT",
+                   help="write the result as JSON to OUT")
+    p.add_argument("--plot", type=Path, default=None, metavar="FILE",
+                   help="save Fig. 3 with the set to FILE (.png, .pdf or .svg)")
+    p.set_defaults(func=_cmd_springs)
+
+
+def _cmd_springs(args: argparse.Namespace) -> int:
+    from .spring_set import MAX_SPRINGS, design_spring_set
+    from .springs import ETCH_BIAS_UM
+
+    if args.plot is not None and args.plot.suffix.lower() not in _PLOT_SUFFIXES:
+        raise ValueError(
+            f"--plot {args.plot}: the file must end in one of {', '.join(_PLOT_SUFFIXES)}"
+        )
+    for opt, path in (("--json", args.json), ("--plot", args.plot)):
+        if path is not None and not path.parent.exists():
+            raise ValueError(f"{opt} {path}: directory {path.parent} does not exist")
+    result = design_spring_set(
+        args.load_range_uN,
+        n_springs=args.n_springs,
+        etch_bias_um=ETCH_BIAS_UM if args.etch_bias_um is None else args.etch_bias_um,
+        max_springs=MAX_SPRINGS if args.max_springs is None else args.max_springs,
+    )
+    print(result.report())
+    if args.json is not None:
+        args.json.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
+        print(f"wrote {args.json}")
+    if args.plot is not None:
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(6.5, 5.0), layout="constrained")
+        result.plot(ax=fig.add_subplot())
+        fig.savefig(args.plot, dpi=150)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+# --------------------------------------------------------------------------------------
+# placeholders (filled in later)
+# --------------------------------------------------------------------------------------
+def _add_ranges(sub) -> None:
+    p = sub.add_parser("ranges", help="operating ranges per spring (not implemented yet)")
+    p.set_defaults(func=_cmd_ranges)
+
+
+def _cmd_ranges(args: argparse.Namespace) -> int:
+    print("design ranges: not implemented yet", file=sys.stderr)
+    return 2
+
+
+def _add_experiment(sub) -> None:
+    p = sub.add_parser("experiment", help="experiment design (not implemented yet)")
+    p.set_defaults(func=_cmd_experiment)
+
+
+def _cmd_experiment(args: argparse.Namespace) -> int:
+    print("design experiment: not implemented yet", file=sys.stderr)
+    return 2
+
+
+_SUBCOMMANDS: tuple[Callable, ...] = (_add_springs, _add_ranges, _add_experiment)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser: one subparser per entry of ``_SUBCOMMANDS``."""
+    parser = _Parser(
+        prog="python -m design",
+        description="nanofrictor design: springs, operating ranges and experiments.",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log solver progress")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for add in _SUBCOMMANDS:
+        add(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; return the exit code (0 ok, 2 bad input)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        if args.command is None:
+            raise _UsageError(
+                f"{parser.prog}: choose a command: "
+                + ", ".join(a.__name__[len("_add_"):] for a in _SUBCOMMANDS)
+            )
+        if args.verbose:
+            logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
+        return int(args.func(args))
+    except SystemExit as exc:  # --help
+        return int(exc.code or 0) if not isinstance(exc.code, str) else 2
+    except (ValueError, OSError) as exc:
+        msg = " ".join(str(exc).split())
+        print(f"error: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

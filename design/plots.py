@@ -1,0 +1,132 @@
+"""Plots of the design package (the paper's Fig. 3 and spring sets on it).
+
+Every function takes ``ax=None`` (a new figure is made with pyplot when None) and returns
+the axes. Axes are in display units: spring constant k in N/m (x, log), normal load Nb in
+µN (y, log). Nothing here calls ``plt.show()``.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import constraints as tc
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .spring_set import SpringSet, SpringSetResult
+
+__all__ = ["plot_feasible_region", "plot_spring_set", "plot_design"]
+
+_UN = 1e6  # N -> µN
+
+
+def _axes(ax):
+    if ax is None:
+        import matplotlib.pyplot as plt
+
+        _, ax = plt.subplots(figsize=(6.0, 4.5))
+    return ax
+
+
+def plot_feasible_region(ax=None, *, k_limits_N_per_m: tuple[float, float] = (3e-3, 300.0),
+                         color: str = "0.85", boundaries: bool = True):
+    """Shade the Table I region: (k, Nb) allowed for every μ in [0.1, 0.9] (Fig. 3).
+
+    Parameters
+    ----------
+    ax : matplotlib Axes, optional
+    k_limits_N_per_m : (float, float)
+        x-axis limits (N/m).
+    color : str
+        Fill colour of the allowed region.
+    boundaries : bool
+        Also draw the resolution (e = 90 nm at μ = 0.1) and travel (e = 100 µm at μ = 0.9)
+        lines over the whole axis.
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    ax = _axes(ax)
+    k = np.geomspace(tc.K_MIN.bound, tc.K_MAX.bound, 400)
+    lo, hi = tc.allowed_load_range(k)
+    ok = np.isfinite(lo)
+    ax.fill_between(k[ok], lo[ok] * _UN, hi[ok] * _UN, color=color, lw=0, label="Table I allowed")
+    if boundaries:
+        kk = np.geomspace(*k_limits_N_per_m, 50)
+        lo_e, hi_e = tc.elongation_window(kk, kk)
+        ax.plot(kk, lo_e * _UN, color="0.5", lw=0.8, ls=":")
+        ax.plot(kk, hi_e * _UN, color="0.5", lw=0.8, ls=":")
+        for c in (tc.LOAD_MIN, tc.LOAD_MAX):
+            ax.axhline(c.bound * _UN, color="0.5", lw=0.8, ls=":")
+        for c in (tc.K_MIN, tc.K_MAX):
+            ax.axvline(c.bound, color="0.5", lw=0.8, ls=":")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlim(*k_limits_N_per_m)
+    ax.set_ylim(tc.LOAD_MIN.bound * _UN / 3, tc.LOAD_MAX.bound * _UN * 3)
+    ax.set_xlabel("spring constant k (N/m)")
+    ax.set_ylabel("normal load Nb (µN)")
+    return ax
+
+
+def plot_spring_set(
+    spring_set: "SpringSet",
+    ax=None,
+    *,
+    color: str = "C0",
+    label: str | None = None,
+    linestyle: str = "-",
+):
+    """Draw a spring set on the k–Nb plane.
+
+    Each spring is a vertical segment at its nominal k over its allowed Nb range (worst case
+    over the etch bias), with horizontal segments at both ends spanning its realised
+    k range [k_soft, k_stiff].
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    ax = _axes(ax)
+    ks, kt = spring_set.spring_constant_ranges
+    lo, hi = spring_set.load_ranges
+    label = spring_set.label if label is None else label
+    for i, k in enumerate(spring_set.spring_constants):
+        if not np.isfinite(lo[i]):
+            continue
+        ax.plot([k, k], [lo[i] * _UN, hi[i] * _UN], color=color, ls=linestyle, lw=2,
+                label=label if i == 0 else None)
+        for y in (lo[i], hi[i]):
+            ax.plot([ks[i], kt[i]], [y * _UN, y * _UN], color=color, ls="-", lw=1.5)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("spring constant k (N/m)")
+    ax.set_ylabel("normal load Nb (µN)")
+    return ax
+
+
+def plot_design(result: "SpringSetResult", ax=None):
+    """Fig. 3 with an optimised set, the paper's set and the requested load range.
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    ax = plot_feasible_region(ax)
+    lo, hi = result.load_range
+    for y in (lo, hi):
+        ax.axhline(y * _UN, color="C3", lw=1, ls="--")
+    ax.plot([], [], color="C3", lw=1, ls="--", label="requested range")
+    def ks(s) -> str:
+        return ", ".join(f"{k:.3g}" for k in s.spring_constants) + " N/m"
+
+    plot_spring_set(result.reference, ax, color="0.35", linestyle="--",
+                    label="paper: " + ks(result.reference))
+    plot_spring_set(result.spring_set, ax, color="C0", label="optimised: " + ks(result.spring_set))
+    ax.legend(loc="upper left", fontsize="small")
+    ax.set_title(
+        f"Table I region, etch bias ±{result.etch_bias_um:g} µm per edge", fontsize="medium"
+    )
+    return ax
