@@ -74,8 +74,9 @@ def compiled(build: Callable[[dict], ca.Function], tag: str = "f") -> ca.Functio
                     os.chdir(tmp)
                     try:
                         fn = build(dict(
-                            jit=True, compiler="shell", jit_serialize="embed",
-                            jit_options=dict(flags=["-O2"], directory=tmp + os.sep, verbose=False),
+                            jit=True, compiler="shell", jit_serialize="embed", jit_cleanup=False,
+                            jit_options=dict(flags=["-O2"], directory=tmp + os.sep, verbose=False,
+                                             cleanup=False),  # the temporary directory goes
                         ))
                     finally:
                         os.chdir(cwd)
