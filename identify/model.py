@@ -52,6 +52,8 @@ __all__ = [
     "slip_rhs",
     "STATE_INDEX",
     "N_STATES",
+    "arc_dae",
+    "transition",
 ]
 
 LENGTH_UNIT = 1e-6  # m: positions in the integrator are in µm
@@ -209,8 +211,31 @@ def slip_dae(model: Model) -> dict:
 
 
 @functools.lru_cache(maxsize=None)
-def _transition(model: Model) -> ca.Function:
+def arc_dae(model: Model) -> dict:
+    """The slip DAE for identification arcs: the puller keeps stepping inside the arc.
+
+    Same equations as :func:`slip_dae`, with xp(t) = u + Δxp·floor(fp·t) (u the puller
+    position at the trigger, in µm) instead of a control per output, so one integrator
+    serves arcs of any number of step intervals. Parameters: those of :func:`slip_dae`
+    followed by fp (Hz).
+    """
+    d = slip_dae(model)
     names, p, P, X, u = _symbols(model)
+    fp = ca.SX.sym("fp")
+    t = ca.SX.sym("t")  # normalised time of the integrator, in [0, 1]
+    t_phys = t * P["duration"] * TIME_UNIT
+    xp = u + model.step(P) / LENGTH_UNIT * ca.floor(fp * t_phys + 1e-9)
+    ode = ca.substitute(d["ode"], u, xp)
+    zero = ca.substitute(d["zero"], u, xp)
+    return dict(x=X, u=u, t=t, p=ca.vertcat(p, fp), ode=ode, zero=zero, names=names + ("fp",))
+
+
+@functools.lru_cache(maxsize=None)
+def _transition(model: Model, extra_p: int = 0) -> ca.Function:
+    """Freeze (stop), arm (stick threshold) or record the peak speed at an event."""
+    names, p, P, X, u = _symbols(model)
+    if extra_p:
+        p = ca.vertcat(p, ca.SX.sym("extra", extra_p))
     idx = ca.SX.sym("index")
     t = ca.SX.sym("t")
     frozen = ca.vertcat(X[0], 0, X[2], 0, X[4], X[5], X[2], ca.fmax(X[7], ca.fabs(X[1])))
@@ -255,7 +280,8 @@ def slip_integrator(
     use_events = (plugin == "rosenbrock") if events is None else events
     if use_events:
         dae["zero"] = d["zero"]
-        opts.update(transition=_transition(model), max_events=10_000_000, event_tol=1e-12)
+        # the event work vector is sized by max_events: a huge bound costs ~1 s per call
+        opts.update(transition=_transition(model), max_events=20_000, event_tol=1e-12)
     if plugin == "idas":
         opts.update(calc_ic=calc_ic, max_num_steps=200_000, disable_internal_warnings=True)
     elif plugin == "rosenbrock":
@@ -263,3 +289,9 @@ def slip_integrator(
     grid = [float(g) for g in grid]
     return compiled(lambda extra: ca.integrator(f"slip_{plugin}", plugin, dae, 0.0, grid, {**opts, **extra}),
                     tag=f"slip_{plugin}_{len(grid)}")
+
+
+def transition(model: Model, extra_p: int = 0) -> ca.Function:
+    """The event transition Function (freeze / arm / peak) for a DAE with ``extra_p``
+    parameters after the slip DAE's."""
+    return _transition(model, extra_p)
