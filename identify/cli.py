@@ -169,8 +169,51 @@ def _cmd_regimes(args) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------- analyze
+def _add_analyze(sub):
+    p = sub.add_parser("analyze", help="events and the paper's reduced analysis of recorded runs",
+                       description="Extract slip events and stick staircases from each run, the "
+                       "paper's reduced analysis (Eq. 8) per run, and the Eq. 9 law fit across "
+                       "runs with the logarithmic and logistic laws compared by AIC.")
+    p.add_argument("data", nargs="+", metavar="DATA", help="trace files (.csv) or folders of runs")
+    p.add_argument("--recursive", action="store_true", help="also look in sub-folders")
+    p.add_argument("--source", default="events",
+                   help="(t_rest, μs) points: events (per-slip triggers) or sqrt12 (the paper's σ√12)")
+    p.add_argument("--json", metavar="OUT.json")
+    p.add_argument("--plots", metavar="DIR", help="write per-run event plots and Figs. 10-11")
+    p.set_defaults(func=_cmd_analyze)
+
+
+def _cmd_analyze(args) -> int:
+    from .analyze import analyze
+
+    res = analyze(args.data, source=args.source, recursive=args.recursive)
+    print(res.report())
+    if args.json:
+        print(f"wrote {_write_json(args.json, res.to_json())}")
+    if args.plots:
+        paths = res.save_plots(args.plots)
+        print(f"wrote {len(paths)} figure(s) to {args.plots}")
+    # non-zero only when nothing at all could be analysed
+    return 0 if any(ra.events is not None for ra in res.runs) else 1
+
+
+# ----------------------------------------------------------------------------- bench
+def _add_bench(sub):
+    p = sub.add_parser("bench", help="speed benchmark of the simulator against the smooth route",
+                       add_help=False, prefix_chars="\0")
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_cmd_bench)
+
+
+def _cmd_bench(args) -> int:
+    from .bench import main as bench_main
+
+    return int(bench_main(args.rest) or 0)
+
+
 # ----------------------------------------------------------------------------- main
-_COMMANDS = [_add_simulate, _add_regimes]
+_COMMANDS = [_add_simulate, _add_regimes, _add_analyze, _add_bench]
 
 
 def build_parser() -> argparse.ArgumentParser:
