@@ -198,6 +198,120 @@ def _cmd_analyze(args) -> int:
     return 0 if any(ra.events is not None for ra in res.runs) else 1
 
 
+# ----------------------------------------------------------------------------- fit
+def _add_fit_arguments(p, json_required: bool):
+    p.add_argument("--coating", default=None, help="FOTAS or OTS (default: the runs' majority)")
+    p.add_argument("--law", default="exponential", help="aging law: exponential, logarithmic, logistic")
+    p.add_argument("--free", default=None, metavar="NAMES",
+                   help="comma-separated free parameters (default mu_max,mu_min,tau,A)")
+    p.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                   help="fix a parameter at a value, SI (repeatable; e.g. --fix v_stick=1e-5)")
+    p.add_argument("--bound", action="append", metavar="NAME=LO:HI", help="bounds of a free parameter")
+    p.add_argument("--start", action="append", metavar="NAME=VALUE", help="start value of a free parameter")
+    p.add_argument("--free-offset", action="store_true", help="estimate a per-run elongation zero offset")
+    p.add_argument("--multistart", type=int, default=0, help="extra random starts (pyPESTO-style summary)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the multistart")
+    p.add_argument("--solver", default="gauss-newton", choices=("gauss-newton", "ipopt"))
+    p.add_argument("--profile", default=None, metavar="NAMES",
+                   help="comma-separated free parameters to profile (likelihood profiles)")
+    p.add_argument("--json", required=json_required, metavar="OUT.json")
+    p.add_argument("--plots", metavar="DIR", help="write data-vs-model figures (PNG + PDF)")
+
+
+def _add_fit(sub):
+    p = sub.add_parser("fit", help="identify friction parameters from recorded runs (full model)",
+                       description="Joint multiple-shooting fit of the hybrid model over all runs.")
+    p.add_argument("data", nargs="+", metavar="DATA", help="trace files (.csv) or folders of runs")
+    _add_fit_arguments(p, json_required=True)
+    p.set_defaults(func=_cmd_fit)
+
+
+def _parse_bounds(items) -> dict:
+    out = {}
+    for item in items or []:
+        name, _, rng = item.partition("=")
+        lo, _, hi = rng.partition(":")
+        try:
+            out[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            raise CLIError(f"--bound {item!r}: expected NAME=LO:HI with numbers") from None
+    return out
+
+
+def _fit_options(args):
+    from .fit import DEFAULT_FREE, FitOptions
+
+    free = tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else DEFAULT_FREE
+    return FitOptions(law=args.law, free=free, fixed=_parse_params(args.fix, "--fix"),
+                      bounds=_parse_bounds(args.bound), start=_parse_params(args.start, "--start"),
+                      free_offset=args.free_offset, multistart=args.multistart, seed=args.seed,
+                      solver=args.solver)
+
+
+def _run_fit(args, data, true_values=None) -> int:
+    from .fit import fit
+
+    opts = _fit_options(args)
+    res = fit(data, coating=args.coating, options=opts, true_values=true_values,
+              progress=lambda msg: print(f"[fit] {msg}", file=sys.stderr, flush=True))
+    # the fit is saved before any optional extra work, so nothing computed is lost
+    if args.json:
+        print(f"wrote {_write_json(args.json, res.to_json())}", file=sys.stderr)
+    for name in (n.strip() for n in (args.profile or "").split(",") if n.strip()):
+        if name not in res.free:
+            raise CLIError(f"--profile {name}: not a free parameter ({', '.join(res.free)})")
+        res.profile(name, progress=lambda msg: print(f"[fit] {msg}", file=sys.stderr, flush=True))
+        if args.json:
+            _write_json(args.json, res.to_json())
+    print(res.report())
+    if args.plots:
+        paths = res.save_plots(args.plots)
+        print(f"wrote {len(paths)} figure file(s) to {args.plots}")
+    return 0
+
+
+def _cmd_fit(args) -> int:
+    return _run_fit(args, args.data)
+
+
+# ----------------------------------------------------------------------------- demo
+def _default_data(coating: str) -> Path:
+    here = Path(__file__).resolve().parent.parent / "data" / coating
+    return here
+
+
+def _add_demo(sub):
+    p = sub.add_parser("demo", help="fit the bundled synthetic FOTAS data set (the main job)",
+                       description="Fit the bundled synthetic data set (data/FOTAS, made with the "
+                       "simulator's stick option v_stick = 1e-5 m/s, see data/README.md), print "
+                       "the report and write the figures and the JSON to --out.")
+    p.add_argument("--coating", default="FOTAS", choices=("FOTAS", "OTS"))
+    p.add_argument("--data", default=None, metavar="DIR", help="data folder (default: the bundled set)")
+    p.add_argument("--out", default="nanofrictor-demo", metavar="DIR",
+                   help="folder for fit.json and the figures (default ./nanofrictor-demo)")
+    p.set_defaults(func=_cmd_demo)
+
+
+def _cmd_demo(args) -> int:
+    from .params import parameter_set
+
+    data = Path(args.data) if args.data else _default_data(args.coating)
+    if not data.is_dir():
+        raise CLIError(f"{data}: bundled data not found (installed without the repository?); "
+                       "pass --data DIR")
+    out = Path(args.out)
+    fit_args = argparse.Namespace(
+        coating=args.coating, law="exponential", free=None, fix=["v_stick=1e-5"], bound=None, start=None,
+        free_offset=False, multistart=0, seed=None, solver="gauss-newton", profile=None,
+        json=str(out / "fit.json"), plots=str(out / "figures"))
+    print(f"demo: fitting {data} (synthetic, made with v_stick = 1e-5 m/s; true values from the "
+          f"{args.coating} preset shown beside the estimates)", file=sys.stderr)
+    truth = parameter_set(args.coating)
+    code = _run_fit(fit_args, [str(data)], true_values=truth)
+    print(f"demo: results in {out}/ (fit.json, figures/)")
+    return code
+
+
 # ----------------------------------------------------------------------------- bench
 def _add_bench(sub):
     p = sub.add_parser("bench", help="speed benchmark of the simulator against the smooth route",
@@ -213,7 +327,7 @@ def _cmd_bench(args) -> int:
 
 
 # ----------------------------------------------------------------------------- main
-_COMMANDS = [_add_simulate, _add_regimes, _add_analyze, _add_bench]
+_COMMANDS = [_add_demo, _add_simulate, _add_regimes, _add_analyze, _add_fit, _add_bench]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -239,6 +353,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as err:
+        # FitError, ParameterError and TraceFormatError are ValueErrors
         print(f"error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

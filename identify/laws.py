@@ -67,6 +67,13 @@ class AgingLaw:
         """Default initial state: a fully aged contact."""
         raise NotImplementedError
 
+    def state_from_coefficient(self, mu: Any, p: Mapping[str, Any], ops: Any = np) -> Any:
+        """Inverse of :meth:`static_coefficient`: the state whose ψ is ``mu``."""
+        return mu
+
+    state_bounds: tuple[float, float] = (0.0, 3.0)
+    """Admissible range of the state (for the identification's bounds)."""
+
     def rejuvenated_state(self, p: Mapping[str, float]) -> float:
         """The state just after a long slip (memory fully lost)."""
         raise NotImplementedError
@@ -142,6 +149,11 @@ class Logarithmic(AgingLaw):
 
     def static_coefficient(self, state, p, ops=np):
         return p["mu_0"] + p["B"] * ops.log(1 + p["vc"] * state / p["dc"])
+
+    def state_from_coefficient(self, mu, p, ops=np):
+        return (ops.exp((mu - p["mu_0"]) / p["B"]) - 1) * p["dc"] / p["vc"]
+
+    state_bounds: tuple[float, float] = (0.0, 1e6)
 
     def rate(self, state, speed, p, ops=np):
         return 1 - speed * state / p["dc"]

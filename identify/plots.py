@@ -42,7 +42,11 @@ def save_figure(fig, path) -> list:
 
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    paths = [p] if p.suffix else [p.with_suffix(".png"), p.with_suffix(".pdf")]
+    # run names carry dots (k2.13): only a known figure format counts as a suffix
+    if p.suffix.lower() in (".png", ".pdf", ".svg", ".eps", ".jpg", ".jpeg", ".tif", ".tiff"):
+        paths = [p]
+    else:
+        paths = [p.with_name(p.name + ".png"), p.with_name(p.name + ".pdf")]
     for q in paths:
         fig.savefig(q, dpi=200, bbox_inches="tight")
     return paths

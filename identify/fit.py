@@ -1,0 +1,431 @@
+"""Full-model identification: event-based multiple shooting, joint over runs.
+
+The data fix the mode sequence (:mod:`identify.events`: plateaus separated by slips at
+trigger steps); :mod:`identify.nlp` builds the multiple-shooting NLP over all runs;
+:mod:`identify.start` gets its start near the solution (the reduced analysis first,
+DESIGN.md §2); this module prepares the runs, drives the solves, refines the mode
+sequence with the fitted model and hands the solution to :mod:`identify.report`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from .laws import get_law
+from .model import Model
+from .nlp import Problem
+from .params import parameter_set, spec
+
+__all__ = ["FitOptions", "fit", "FitError", "RunData", "prepare_runs"]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_FREE = ("mu_max", "mu_min", "tau", "A")
+SIGMA_FLOOR = 1e-12 / math.sqrt(12)  # m: rounding of the trace format's 6 decimals in µm
+
+
+class FitError(ValueError):
+    """Nothing could be fitted (every run was left out, or the solver failed)."""
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """How to fit.
+
+    Parameters
+    ----------
+    law : str
+        Aging law (``exponential``, ``logarithmic``, ``logistic``).
+    free : tuple of str
+        Parameters estimated (any model parameter: friction, platform or effect).
+    fixed : dict
+        Values for parameters that are not free (default: the coating's preset).
+    bounds : dict
+        name -> (lower, upper) for free parameters (default: the parameter table's).
+    start : dict
+        Start values for free parameters (default: the reduced analysis, else the preset).
+    free_offset : bool
+        Estimate a per-run elongation zero offset.
+    use_creep_runs : bool
+        Use runs without resolvable slips as steady-sliding observations when the model
+        at the start parameters creeps there.
+    max_arc_steps : int
+        Largest number of puller steps one slip arc may span.
+    arc_reltol, arc_abstol : float
+        Tolerances of the arcs (scaled units).
+    solver : {"gauss-newton", "ipopt"}
+        ``gauss-newton`` (default): constrained Gauss–Newton SQP with an ℓ1-merit line
+        search (Bock's method for multiple shooting). ``ipopt``: Ipopt with the same
+        Gauss–Newton Hessian and oracles — measured to stall on these problems
+        (README), kept for comparison.
+    staged_start : bool
+        Start from the trigger and slip-length stages of :mod:`identify.start`.
+    max_iter, tol : iteration limit; tolerance on the relative step and feasibility.
+    threads : int
+        Threads for the arc evaluations.
+    multistart : int
+        Extra starts drawn around the first (log-normal, 30 %) with ``seed``.
+    scale_covariance : bool
+        Scale the model-based covariance by the reduced χ² (lmfit's default).
+    free_phase : bool
+        Estimate per run the phase of the step interval at which its slips recur (a
+        random effect with a uniform prior) instead of taking the middle. Measured on the
+        8-run FOTAS recovery set: slower and less accurate (README), so off by default.
+    covariance : {"robust", "model"}
+        ``robust`` (default): trigger residuals counted cluster-robustly by run (slips of
+        a run share a phase error); ``model``: every residual independent.
+    """
+
+    law: str = "exponential"
+    free: tuple = DEFAULT_FREE
+    fixed: Mapping[str, float] = field(default_factory=dict)
+    bounds: Mapping[str, tuple] = field(default_factory=dict)
+    start: Mapping[str, float] = field(default_factory=dict)
+    free_offset: bool = False
+    use_creep_runs: bool = True
+    max_arc_steps: int = 64
+    arc_reltol: float = 1e-6
+    arc_abstol: float = 1e-8
+    solver: str = "gauss-newton"
+    staged_start: bool = True
+    max_iter: int = 100
+    tol: float = 1e-8
+    threads: int = 2
+    multistart: int = 0
+    seed: int | None = None
+    scale_covariance: bool = True
+    covariance: str = "robust"
+    free_phase: bool = False
+
+    def __post_init__(self):
+        get_law(self.law)
+        free = tuple(self.free)
+        object.__setattr__(self, "free", free)
+        if not free:
+            raise ValueError("free: at least one parameter must be free")
+        model = Model(get_law(self.law))
+        allowed = set(model.parameter_names)
+        for name in free:
+            if name not in allowed:
+                raise ValueError(
+                    f"free: {name!r} is not a parameter of the {self.law} model; "
+                    f"choose from {', '.join(model.parameter_names)}"
+                )
+        if len(set(free)) != len(free):
+            raise ValueError(f"free: {free} lists a parameter twice")
+        for name, value in dict(self.fixed).items():
+            spec(name).check(value, "fixed ")
+            if name in free:
+                raise ValueError(f"{name} is both free and fixed")
+        for name, (lo, hi) in dict(self.bounds).items():
+            if name not in free:
+                raise ValueError(f"bounds: {name} is not free")
+            if not lo < hi:
+                raise ValueError(f"bounds: {name} needs lower < upper, got ({lo}, {hi})")
+        for name in ("max_arc_steps", "max_iter", "threads"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} = {getattr(self, name)!r}: must be a positive integer")
+        if self.multistart < 0:
+            raise ValueError(f"multistart = {self.multistart!r}: must be >= 0")
+        if self.covariance not in ("robust", "model"):
+            raise ValueError(f"covariance = {self.covariance!r}: choose 'robust' or 'model'")
+        if self.solver not in ("gauss-newton", "ipopt"):
+            raise ValueError(f"solver = {self.solver!r}: choose 'gauss-newton' or 'ipopt'")
+
+
+# ----------------------------------------------------------------------------- data
+@dataclass
+class RunData:
+    """One run prepared for the NLP (numbers from its detected events)."""
+
+    name: str
+    kind: str  # "events" or "creep"
+    k: float
+    Nb: float
+    fp: float
+    step_nominal: float
+    sigma: float  # frame noise, m
+    n_frames: int
+    # events runs: per plateau
+    plateau_n: np.ndarray | None = None
+    plateau_mean_e: np.ndarray | None = None  # m
+    plateau_mean_steps: np.ndarray | None = None
+    plateau_level0: np.ndarray | None = None  # data estimate of the block position, m
+    s_nn: float = 0.0  # pooled within-plateau Σ(n − n̄)²
+    slope_hat: float = 0.0  # pooled within-plateau staircase slope, m/step
+    s_res: float = 0.0  # pooled within-plateau residual sum of squares, m²
+    # per slip
+    trigger_steps: np.ndarray | None = None
+    # creep runs
+    steady_mean_e: float = float("nan")
+    steady_se: float = float("nan")
+    events: Any = None
+
+
+def prepare_runs(items, *, coating: str | None = None, noise_m: float | None = None):
+    """Traces, RunEvents or paths -> (usable RunData list, excluded [(name, reason)], coating).
+
+    Runs are left out, with their reason, when they break the format, have no usable
+    conditions, belong to another coating, or show neither slips nor steady creep.
+    """
+    from .events import RunEvents, extract_events
+    from .traces import Trace, TraceFormatError, load_traces
+
+    excluded: list[tuple[str, str]] = []
+    traces: list = []
+    path_like = [x for x in items if not isinstance(x, (Trace, RunEvents))]
+    if path_like:
+        ts = load_traces(path_like)
+        traces.extend(ts.traces)
+        for err in ts.errors:
+            excluded.append((str(getattr(err, "path", "?")), str(err)))
+    traces.extend(x for x in items if isinstance(x, (Trace, RunEvents)))
+    coatings = [((t.trace if isinstance(t, RunEvents) else t).coating or "").upper() for t in traces]
+    if coating is None:
+        named = [c for c in coatings if c]
+        coating = max(set(named), key=named.count) if named else "FOTAS"
+    coating = coating.upper()
+    runs: list[RunEvents] = []
+    for item, c in zip(traces, coatings):
+        tr = item.trace if isinstance(item, RunEvents) else item
+        if c and c != coating:
+            excluded.append((tr.name, f"coating {c} differs from the fit's {coating}"))
+            continue
+        try:
+            ev = item if isinstance(item, RunEvents) else extract_events(tr, noise_m=noise_m)
+        except (ValueError, TraceFormatError) as err:
+            excluded.append((tr.name, f"event extraction failed: {err}"))
+            continue
+        runs.append(ev)
+    return runs, excluded, coating
+
+
+def _resolved_slips(ev) -> bool:
+    """Most of the block's travel happens in slips much longer than a puller step: the
+    run is event-based even when the block also creeps between slips (the model as
+    written has creep tails). A creeping block, cut by the segmentation into many small
+    'slips' of a step or two, fails this."""
+    d = np.asarray(ev.slips.get("slip_length_m", []), float)
+    big = d > 10 * ev.trace.step_size
+    return int(big.sum()) >= 2 and d[big].sum() > 0.5 * np.abs(d).sum()
+
+
+def _plateaus_from_triggers(ev, triggers: np.ndarray, moving_s: np.ndarray | None = None) -> np.ndarray:
+    """Plateau index of every frame for given trigger steps: frames before trigger i's
+    step belong to plateau i, later ones to plateau i + 1; frames while the block moves
+    (from the trigger step for ``moving_s[i]`` seconds) are left out (−1)."""
+    steps = ev.steps
+    pof = np.searchsorted(np.asarray(triggers), steps, side="right").astype(int)
+    if moving_s is not None and len(triggers):
+        t = ev.trace.time_s
+        fp = ev.trace.step_frequency
+        t_trig = (np.asarray(triggers, float) + ev.step_phase) / fp
+        k = np.clip(pof - 1, 0, len(triggers) - 1)
+        inside = (pof >= 1) & (t >= t_trig[k]) & (t < t_trig[k] + np.asarray(moving_s)[k])
+        pof[inside] = -1
+    return pof
+
+
+def _run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray | None = None) -> RunData:
+    tr = ev.trace
+    # noiseless files still carry the print precision (1e-6 µm): uniform rounding error
+    sigma = max(float(ev.noise_m), SIGMA_FLOOR)
+    base = dict(name=tr.name, k=tr.spring_constant, Nb=tr.normal_load, fp=tr.step_frequency,
+                step_nominal=tr.step_size, sigma=sigma, n_frames=len(tr.time_s), events=ev)
+    if ev.regime != "stick-slip" and not _resolved_slips(ev):
+        # steady part: the second half of the run (after any loading transient)
+        e = tr.elongation[len(tr.elongation) // 2:]
+        se = math.sqrt(ev.noise_m**2 / max(len(e), 1) + (tr.step_size / math.sqrt(12)) ** 2)
+        return RunData(kind="creep", steady_mean_e=float(np.mean(e)), steady_se=se, **base)
+    if triggers is None:
+        triggers = np.asarray(ev.slips["trigger_step"], int)
+        pof = ev.plateau_of_frame
+    else:
+        pof = _plateaus_from_triggers(ev, triggers, moving_s)
+    steps = ev.steps.astype(float)
+    e = tr.elongation
+    P = len(triggers) + 1
+    use = pof >= 0
+    n = np.bincount(pof[use], minlength=P).astype(float)
+    sum_e = np.bincount(pof[use], weights=e[use], minlength=P)
+    sum_s = np.bincount(pof[use], weights=steps[use], minlength=P)
+    mean_e, mean_s = sum_e / np.maximum(n, 1), sum_s / np.maximum(n, 1)
+    de = e[use] - mean_e[pof[use]]
+    ds = steps[use] - mean_s[pof[use]]
+    s_nn, s_en, s_ee = float(ds @ ds), float(de @ ds), float(de @ de)
+    slope = s_en / s_nn if s_nn > 0 else tr.step_size
+    s_res = s_ee - (s_en**2 / s_nn if s_nn > 0 else 0.0)
+    level0 = tr.step_size * mean_s - mean_e  # data estimate of each plateau's block position
+    return RunData(
+        kind="events", plateau_n=n, plateau_mean_e=mean_e, plateau_mean_steps=mean_s,
+        plateau_level0=level0, s_nn=s_nn, slope_hat=slope,
+        s_res=max(s_res, 0.0), trigger_steps=np.asarray(triggers, int), **base,
+    )
+
+
+# ----------------------------------------------------------------------------- driver
+def _start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict, str]:
+    """Start from the reduced analysis where it can say something (DESIGN.md §2)."""
+    start = {n: preset[n] for n in opts.free}
+    source = "preset"
+    ev_runs = [r.events for r in runs if r.kind == "events"]
+    try:
+        from .reduced import reduced_fit
+
+        red = [ev.reduced for ev in ev_runs if getattr(ev, "reduced", None) is not None]
+        if len(red) >= 4 and law.name in ("exponential", "logistic"):
+            fitted = reduced_fit(red, laws=(law.name,)).fits[law.name]
+            if fitted.converged:
+                for n in ("mu_max", "mu_min", "tau"):
+                    if n in start and n in fitted.parameters and np.isfinite(fitted.parameters[n]):
+                        start[n] = float(fitted.parameters[n])
+                source = "reduced analysis"
+    except Exception as err:  # the start is a convenience, never a reason to fail
+        log.info("reduced-analysis start unavailable: %s", err)
+    for n, v in opts.start.items():
+        if n in start:
+            start[n] = float(v)
+            source = "given"
+    if "mu_min" in start and "mu_max" in start and start["mu_min"] >= start["mu_max"]:
+        start["mu_min"] = 0.9 * start["mu_max"]
+    return start, source
+
+
+def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
+        true_values: Mapping[str, float] | None = None, progress: Callable[[str], None] | None = None):
+    """Identify the friction parameters from recorded runs.
+
+    Parameters
+    ----------
+    data : sequence of paths, Traces or RunEvents
+        Files or folders of the trace format, loaded traces, or extracted events.
+    coating : str, optional
+        FOTAS or OTS: the preset for the parameters that are not free; runs of another
+        coating are left out (default: the runs' majority coating).
+    options : FitOptions
+    true_values : dict, optional
+        Shown beside the estimates in the report (synthetic data).
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    FitError
+        When no run can be used or every solver start fails.
+    """
+    from .report import FitResult, ParameterEstimate, build_result
+
+    opts = options or FitOptions()
+    say = progress or (lambda msg: log.info(msg))
+    wall0 = time.perf_counter()
+    items = [data] if isinstance(data, (str, bytes)) or hasattr(data, "__fspath__") else list(data)
+    say(f"loading {len(items)} input(s) and extracting events")
+    runs_ev, excluded, coating = prepare_runs(items, coating=coating)
+    law = get_law(opts.law)
+    model = Model(law)
+    preset = parameter_set(coating, {n: v for n, v in opts.fixed.items()})
+    run_data = []
+    for ev in runs_ev:
+        rd = _run_data(ev)
+        if rd.kind == "creep":
+            if not opts.use_creep_runs:
+                excluded.append((rd.name, f"no resolvable slips (data regime {ev.regime})"))
+                continue
+        if rd.kind == "events" and len(rd.trigger_steps) < 1:
+            excluded.append((rd.name, "no slip detected"))
+            continue
+        run_data.append(rd)
+    start, start_source = _start_values(run_data, law, preset, opts)
+    values = {**model.defaults(preset), **start}
+    # a creep run is used only where the model at the start creeps too
+    if any(r.kind == "creep" for r in run_data):
+        from .simulation import SimulationOptions, simulate_run, RunConditions
+
+        kept = []
+        for r in run_data:
+            if r.kind != "creep":
+                kept.append(r)
+                continue
+            try:
+                n_steps = max(50, int(round(r.n_frames / max(r.events.trace.frame_rate / r.fp, 1))))
+                sim = simulate_run(model, values, RunConditions(r.k, r.Nb, r.fp, n_steps),
+                                   SimulationOptions(record=False))
+                if sim.regime == "creep":
+                    kept.append(r)
+                else:
+                    excluded.append((r.name, f"no resolvable slips and the model predicts {sim.regime}, "
+                                             "not steady creep"))
+            except Exception as err:
+                excluded.append((r.name, f"no resolvable slips; creep check failed: {err}"))
+        run_data = kept
+    if not run_data:
+        raise FitError("no run could be used: " + "; ".join(f"{n}: {why}" for n, why in excluded) if excluded
+                       else "no run could be used")
+    say(f"{len(run_data)} run(s) used, {len(excluded)} left out; building the NLP")
+    prob = Problem(run_data, model, values, opts).build()
+    if opts.staged_start:
+        from .start import staged_start
+
+        say("start: aging from the triggers, then the slip parameters from slip lengths")
+        start_given = dict(start)
+        start, stages = staged_start(prob, start, seed=opts.seed or 0)
+        start_source += " -> staged (triggers, slip lengths)"
+        log.info("staged start %s from %s", start, start_given)
+    w0 = prob.initial_w(start)
+    starts = [w0]
+    rng = np.random.default_rng(opts.seed)
+    for _ in range(opts.multistart):
+        w = w0.copy()
+        w[: prob.n_theta] = np.clip(w0[: prob.n_theta] + np.where(prob.theta.log, rng.normal(0, 0.3, prob.n_theta),
+                                    rng.normal(0, 0.3, prob.n_theta) * np.abs(w0[: prob.n_theta]) + 1e-3),
+                                    prob.theta.lo + 1e-9, prob.theta.hi - 1e-9)
+        starts.append(w)
+    results = []
+    for i, w in enumerate(starts):
+        say(f"solving: start {i + 1} of {len(starts)}")
+        try:
+            results.append(prob.solve(w))
+        except Exception as err:
+            results.append(dict(w=w, f=np.inf, status=f"failed: {err}", success=False, iterations=0, wall_s=0.0))
+    best = min(results, key=lambda r: r["f"])
+    if not np.isfinite(best["f"]):
+        raise FitError("every solver start failed: " + "; ".join(r["status"] for r in results))
+    # the mode sequence: move triggers the model places a step or two off, and leave
+    # out the frames taken while the block moved; re-solve until nothing moves
+    refined = 0
+    for round_ in range(5):
+        changes, n_moved = prob.refine_triggers(best["w"])
+        if round_ > 0 and n_moved == 0:
+            break
+        refined += n_moved
+        moving = prob.moving_times(best["w"])
+        new_runs = []
+        for i, r in enumerate(prob.runs):
+            if r.kind != "events":
+                new_runs.append(r)
+                continue
+            new_runs.append(_run_data(r.events, triggers=changes.get(i, r.trigger_steps), moving_s=moving.get(i)))
+        say(f"mode sequence: {n_moved} slip trigger(s) moved; re-solving")
+        M_prev = prob.ev_M.copy()
+        prob = Problem(new_runs, model, values, opts)
+        prob.ev_M = M_prev
+        prob.build()
+        w_next = best["w"].copy()
+        prob.size_arcs(w_next)
+        sol = prob.solve(w_next)
+        sol["iterations"] += best["iterations"]
+        sol["wall_s"] += best["wall_s"]
+        best = sol
+    best["triggers_moved"] = refined
+    say("covariance")
+    result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,
+                          time.perf_counter() - wall0)
+    return result

@@ -1,0 +1,717 @@
+"""The identification NLP: event-based multiple shooting over all runs.
+
+Decision variables
+    θ, the free model parameters (scaled: log for positive ones, else value/scale); per
+    run optionally an elongation offset; per plateau p the block position x_p (µm).
+Constraints (continuity of the hybrid trajectory)
+    x_{p+1} = x_p + δ_e: slip e's length from its arc (:mod:`identify.arcs`, the
+    symbolic slip model integrated event-aware over the steps it spans).
+Residuals (σ-normalised: the noise model is stated and the covariance follows from it)
+    * plateau frames: e_j = Δx·n_j − x_p + offset + noise(σ_run), compressed exactly into
+      each plateau's mean (√n·(ē − Δx·n̄ + x − offset)/σ) and the run's pooled
+      within-plateau staircase slope (√S_nn·(Δx − Δx̂)/σ); the objective equals the
+      frame-level χ² up to a constant;
+    * triggers: the contact left by the previous slip's arc, aged in closed form over
+      the rest, must put the capacity inside the trigger step's spring-force interval
+      [F_s(e − Δx), F_s(e)] (the slip happened at this step, not the one before). The
+      position within is uniform: residual √12·(position − ½), smooth in the parameters
+      where the trigger rule itself is discrete;
+    * creep runs (no resolvable slips): their steady elongation against the steady
+      friction at the pull speed.
+
+Each arc starts from its own trigger's mid-interval state, so it is a valid trigger for
+any parameters (a state that the model aged above the force after the step would not
+slip: the arc would have a cliff). The data cannot place the capacity inside the
+interval; the mid-point moves a fast slip's length by ~|∂δ/∂ψ0|·Δψ/2 ≈ 0.5 nm at 5 µN,
+far below a plateau's ~15 nm precision.
+
+Derivatives: the residuals and constraints are explicit in w and the arc outputs Y; the
+arcs' Jacobians (central differences of the compiled arc) are chain-ruled in a sparse
+block-diagonal product. The Gauss–Newton Hessian is JᵣᵀJᵣ.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Iterable, Mapping, Sequence
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .arcs import ArcFunctions, arc_functions
+from .model import LENGTH_UNIT, Model
+from .params import SPECS
+
+__all__ = ["Problem", "ThetaMap"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class ThetaMap:
+    """Free parameters <-> scaled decision variables (log or linear)."""
+
+    names: tuple
+    scale: np.ndarray
+    log: np.ndarray
+    lo: np.ndarray  # scaled bounds
+    hi: np.ndarray
+
+    @classmethod
+    def build(cls, names, bounds: Mapping[str, tuple]):
+        scale, logs, lo, hi = [], [], [], []
+        for n in names:
+            s = SPECS[n]
+            b = bounds.get(n, (s.lower, s.upper))
+            scale.append(s.scale)
+            use_log = s.log and b[0] > 0
+            logs.append(use_log)
+            if use_log:
+                lo.append(math.log(b[0] / s.scale))
+                hi.append(math.log(b[1] / s.scale))
+            else:
+                lo.append(b[0] / s.scale)
+                hi.append(b[1] / s.scale)
+        return cls(tuple(names), np.array(scale), np.array(logs, bool), np.array(lo), np.array(hi))
+
+    def to_scaled(self, values: Mapping[str, float]) -> np.ndarray:
+        v = np.array([values[n] for n in self.names], float)
+        return np.where(self.log, np.log(np.maximum(v, 1e-300) / self.scale), v / self.scale)
+
+    def from_scaled(self, th, ops=np):
+        return [self.scale[i] * ops.exp(th[i]) if self.log[i] else self.scale[i] * th[i]
+                for i in range(len(self.names))]
+
+    def jacobian_diag(self, th: np.ndarray) -> np.ndarray:
+        """d value / d scaled, per parameter."""
+        vals = np.array(self.from_scaled(th))
+        return np.where(self.log, vals, self.scale)
+
+
+class _ArcCallback(ca.Callback):
+    """Arc values (5 × E) or Jacobians (2 × n_in·E) for all slips, memoised on the input
+    matrix: the solver asks for them at the same point from several Functions."""
+
+    def __init__(self, name: str, arcs: ArcFunctions, n_events: int, threads: int, jac: bool,
+                 counter: dict, rows=None):
+        ca.Callback.__init__(self)
+        self.arcs, self.E, self.threads, self.jac = arcs, n_events, threads, jac
+        self.counter, self.rows = counter, rows
+        self._key: bytes | None = None
+        self._val = None
+        self.construct(name, {})
+
+    def get_n_in(self):
+        return 1
+
+    def get_n_out(self):
+        return 1
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity.dense(self.arcs.n_in, self.E)
+
+    def get_sparsity_out(self, i):
+        return ca.Sparsity.dense(2, self.arcs.n_in * self.E) if self.jac else ca.Sparsity.dense(5, self.E)
+
+    def eval(self, arg):
+        A = np.array(arg[0])
+        key = A.tobytes()
+        if key != self._key:
+            t0 = time.perf_counter()
+            if self.jac:
+                self._val = self.arcs.evaluate_jacobian(A, self.threads, rows=self.rows)[1]
+                self.counter["jac_s"] += time.perf_counter() - t0
+                self.counter["jac_calls"] += 1
+            else:
+                self._val = self.arcs.evaluate(A, self.threads)
+                self.counter["arc_s"] += time.perf_counter() - t0
+                self.counter["arc_calls"] += 1
+            self._key = key
+        return [self._val]
+
+
+def trigger_residual(s, phase=0.5):
+    """Residual of a trigger at position s ∈ [0, 1] of its admissible interval.
+
+    The position is uniform over the interval. But slips of a run recur at nearly the
+    same phase of the step interval (a deterministic cycle locks it), so their errors
+    are one shared error, not many independent ones: a Gaussian surrogate √12·(s − ½)
+    per slip pulled every trigger to mid-interval and put μmax 9σ low on synthetic data.
+    The NLP therefore gives each run a phase φ (a random effect): √12·(s − φ) per slip —
+    what varies within the run, e.g. with the rest — and √12·(φ − ½) once per run.
+    (Measured alternatives: exact interval constraints stalled the solver and gave a
+    useless Gauss–Newton covariance; flat-bottomed residuals diverged.)
+    """
+    return math.sqrt(12) * (s - phase)
+
+
+def _blockdiag_sparsity(rows: int, cols: int, E: int) -> ca.Sparsity:
+    """E dense rows × cols blocks on the diagonal (column-major nonzeros = vec of the
+    rows × cols·E matrix of the blocks side by side)."""
+    r = np.tile(np.arange(rows), cols * E) + np.repeat(np.arange(E), rows * cols) * rows
+    c = np.repeat(np.arange(cols * E), rows)
+    return ca.Sparsity.triplet(rows * E, cols * E, r.tolist(), c.tolist())
+
+
+def _to_csc(M, n_cols: int) -> sp.csc_matrix:
+    M = ca.DM(M)
+    r, c = M.sparsity().get_triplet()
+    return sp.csc_matrix((np.array(M.nonzeros()), (r, c)), shape=(M.size1(), n_cols))
+
+
+class Problem:
+    """The NLP over all usable runs for one set of free parameters.
+
+    Fixing a free parameter (profiles) is done with equal bounds, so the same NLP
+    serves the fit, the multistart and the profile likelihoods.
+    """
+
+    def __init__(self, runs: Sequence, model: Model, values: dict, opts):
+        self.runs = list(runs)
+        self.model, self.law, self.opts = model, model.law, opts
+        self.values = dict(values)
+        self.theta = ThetaMap.build(opts.free, dict(opts.bounds))
+        self.arcs = arc_functions(model, opts.arc_reltol, opts.arc_abstol)
+        self.counter = dict(arc_s=0.0, jac_s=0.0, arc_calls=0, jac_calls=0)
+        self._layout()
+
+    # ---------------------------------------------------------------- layout
+    def _layout(self):
+        ev_runs = [r for r in self.runs if r.kind == "events"]
+        self.creep_runs = [r for r in self.runs if r.kind == "creep"]
+        n_th = len(self.theta.names)
+        n_off = len(self.runs) if self.opts.free_offset else 0
+        P = sum(len(r.plateau_n) for r in ev_runs)
+        E = sum(len(r.trigger_steps) for r in ev_runs)
+        self.n_theta, self.n_off, self.P, self.E = n_th, n_off, P, E
+        self.i_off, self.i_x = n_th, n_th + n_off
+        self.i_phi = self.i_x + P  # per events run: the phase its slips recur at
+        self.n_w = self.i_phi + len(ev_runs)
+        idx = {id(r): i for i, r in enumerate(self.runs)}
+        pl = dict(run=[], n=[], e=[], s=[], x0=[])
+        ev = dict(run=[], prev=[], step=[], first=[], gap=[])
+        p0 = 0
+        for r in ev_runs:
+            ri = idx[id(r)]
+            Pr, Er = len(r.plateau_n), len(r.trigger_steps)
+            pl["run"] += [ri] * Pr
+            pl["n"].append(r.plateau_n)
+            pl["e"].append(r.plateau_mean_e)
+            pl["s"].append(r.plateau_mean_steps)
+            pl["x0"].append(r.plateau_level0)
+            for i in range(Er):
+                ev["run"].append(ri)
+                ev["prev"].append(p0 + i)
+                ev["step"].append(int(r.trigger_steps[i]))
+                ev["first"].append(i == 0)
+                ev["gap"].append(int(r.trigger_steps[i + 1] - r.trigger_steps[i]) if i + 1 < Er else 10**9)
+            p0 += Pr
+        cat = lambda v: np.concatenate(v) if v else np.zeros(0)  # noqa: E731
+        self.pl_run = np.array(pl["run"], int)
+        self.pl_n, self.pl_mean_e, self.pl_mean_s, self.pl_x0 = (cat(pl[k]) for k in ("n", "e", "s", "x0"))
+        self.ev_run = np.array(ev["run"], int)
+        self.ev_prev = np.array(ev["prev"], int)
+        self.ev_step = np.array(ev["step"], float)
+        self.ev_first = np.array(ev["first"], bool)
+        self.ev_gap = np.array(ev["gap"], int)
+        self.ev_M = np.minimum(np.ones(E, int), self.ev_gap)
+        rr = self.runs
+        self.ev_k = np.array([rr[i].k for i in self.ev_run])
+        self.ev_Nb = np.array([rr[i].Nb for i in self.ev_run])
+        self.ev_fp = np.array([rr[i].fp for i in self.ev_run])
+        self.pl_sigma = np.array([rr[i].sigma for i in self.pl_run])
+        self.ev_next = np.nonzero(~self.ev_first)[0]  # slips with a predecessor in their run
+        self.n_trig = len(self.ev_next)
+        ev_run_ids = sorted(set(self.ev_run.tolist()))
+        self.phase_of_run = {ri: k for k, ri in enumerate(ev_run_ids)}
+        self.n_phase = len(ev_run_ids)
+
+    # ---------------------------------------------------------------- physics helpers
+    def params(self, th) -> dict:
+        """Model parameter values (numbers or MX), the free ones from scaled ``th``."""
+        P = {n: self.values[n] for n in self.model.parameter_names}
+        ops = ca if isinstance(th, ca.MX) else np
+        P.update(zip(self.theta.names, self.theta.from_scaled(th, ops=ops)))
+        return P
+
+    def interval(self, x_prev_m, e0, P, ops=np):
+        """Spring-force interval of the trigger step, [F_s(e0 − Δx), F_s(e0)] (N)."""
+        step = self.model.step(P)
+        return self.model.spring_force(e0 - step, P, ops=ops), self.model.spring_force(e0, P, ops=ops)
+
+    def mid_state(self, x_prev_m, e0, P, ops=np):
+        """The contact state whose capacity sits in the middle of the trigger interval."""
+        f_lo, f_hi = self.interval(x_prev_m, e0, P, ops)
+        band = P["A"] * ops.log(1 + P["v_stick"] / P["vc"])
+        mu = 0.5 * (f_lo + f_hi) / self.model.normal_load(P) - band - self.model.topography(x_prev_m, P, ops)
+        return self.law.state_from_coefficient(mu, P, ops)
+
+    def position(self, z, x_prev_m, e0, P, ops=np, z_before=None):
+        """Where state z puts the capacity inside the trigger's admissible interval (0 .. 1).
+
+        The slip happened at this step and not at the one before: cap(tₙ) < F_s(eₙ) and
+        cap(tₙ₋₁) ≥ F_s(eₙ − Δx). The contact ages during the step, by
+        Δ = cap(tₙ) − cap(tₙ₋₁) (``z_before``: the state one step earlier), so cap(tₙ)
+        lies in [F_s(eₙ − Δx) + Δ, F_s(eₙ)] — a large correction where the contact ages
+        fast (rests near τ at high step frequency: measured up to 65 % of the interval).
+        """
+        f_lo, f_hi = self.interval(x_prev_m, e0, P, ops)
+        N = self.model.normal_load(P)
+        cap = self.model.hold_coefficient(z, x_prev_m, P, ops) * N
+        if z_before is not None:
+            gain = (self.model.hold_coefficient(z, x_prev_m, P, ops)
+                    - self.model.hold_coefficient(z_before, x_prev_m, P, ops)) * N
+            width = f_hi - f_lo
+            # keep a sliver of the interval when the aging outruns a whole step
+            f_lo = f_lo + (ops.fmin(gain, 0.9 * width) if ops is ca else np.minimum(gain, 0.9 * width))
+        return (cap - f_lo) / (f_hi - f_lo)
+
+    # ---------------------------------------------------------------- symbolic NLP
+    def _symbolic(self, w, Y):
+        """Arc inputs A(w), residuals r(w, Y), constraints g(w, Y); Y = (slip, end state)."""
+        th = w[: self.n_theta]
+        P = self.params(th)
+        E = self.E
+        x_um = w[self.i_x : self.i_x + self.P]
+        step = self.model.step(P)
+        res = []
+        if self.P:
+            off = w[self.i_off + self.pl_run] if self.n_off else 0.0
+            model_e = step * ca.DM(self.pl_mean_s) - x_um * LENGTH_UNIT + off * LENGTH_UNIT
+            res.append(ca.sqrt(ca.DM(self.pl_n)) * (ca.DM(self.pl_mean_e) - model_e) / ca.DM(self.pl_sigma))
+        for r in self.runs:
+            if r.kind == "events" and r.s_nn > 0:
+                res.append(math.sqrt(r.s_nn) * (step - r.slope_hat) / r.sigma)
+        A, g = None, ca.MX(0, 1)
+        if E:
+            x_prev = x_um[self.ev_prev] * LENGTH_UNIT
+            e0 = step * ca.DM(self.ev_step) - x_prev
+            Pev = dict(P, k=ca.DM(self.ev_k), Nb=ca.DM(self.ev_Nb))
+            z0 = self.mid_state(x_prev, e0, Pev, ops=ca)
+            rows = [(x_prev / LENGTH_UNIT).T, (e0 / LENGTH_UNIT).T, z0.T]
+            for n in self.arcs.param_names:
+                v = P[n]
+                rows.append(ca.repmat(v if isinstance(v, ca.MX) else ca.MX(v), 1, E))
+            rows += [ca.DM(self.ev_k).T, ca.DM(self.ev_Nb).T, ca.DM(self.ev_fp).T, ca.DM(self.ev_M).T]
+            A = ca.vertcat(*rows)
+            # triggers: the previous arc's end state aged over the rest, in this interval
+            nx = self.ev_next
+            pv = nx - 1
+            rest = (self.ev_step[nx] - self.ev_step[pv] - self.ev_M[pv]) / self.ev_fp[pv]
+            z_aged = self.law.rest(Y[1, pv].T, ca.DM(rest), P, ops=ca)
+            z_before = self.law.rest(Y[1, pv].T, ca.DM(np.maximum(rest - 1 / self.ev_fp[nx], 0)), P, ops=ca)
+            Pn = dict(P, k=ca.DM(self.ev_k[nx]), Nb=ca.DM(self.ev_Nb[nx]))
+            s_pos = self.position(z_aged, x_prev[nx], e0[nx], Pn, ops=ca, z_before=z_before)
+            phi = w[self.i_phi : self.i_phi + self.n_phase]
+            k_of = np.array([self.phase_of_run[int(ri)] for ri in self.ev_run[nx]], int)
+            res.append(math.sqrt(12) * (s_pos - phi[k_of]))
+            res.append(math.sqrt(12) * (phi - 0.5))
+            g = x_um[self.ev_prev + 1] - x_um[self.ev_prev] - Y[0, :].T
+        for r in self.creep_runs:
+            Pr = dict(P, k=r.k, Nb=r.Nb)
+            vp = r.fp * step
+            zss = self.law.steady_state(vp, Pr, ops=ca)
+            mu = self.law.static_coefficient(zss, Pr, ops=ca) + P["A"] * ca.log(1 + vp / P["vc"])
+            f = self.model.spring_force(r.steady_mean_e, Pr, ops=ca)
+            res.append((f - mu * self.model.normal_load(Pr)) / (r.k * r.steady_se))
+        return A, ca.vertcat(*res), g
+
+    def build(self):
+        """Residual, constraint and derivative Functions (and Ipopt, when chosen)."""
+        opts = self.opts
+        E = self.E
+        w = ca.MX.sym("w", self.n_w)
+        Ysym = ca.MX.sym("Y", 2, max(E, 1))
+        A, rY, gY = self._symbolic(w, Ysym)
+        R_w = ca.jacobian(rY, w)
+        if E:
+            ix = self.arcs.index
+            rows = [ix["x0_um"], ix["e0_um"], ix["state0"]] + [ix[n] for n in self.theta.names if n in ix]
+            self._cb_val = _ArcCallback("arcs", self.arcs, E, opts.threads, False, self.counter)
+            self._cb_jac = _ArcCallback("arc_jacs", self.arcs, E, opts.threads, True, self.counter, rows)
+            Y = self._cb_val(A)[:2, :]
+            JA = ca.MX(_blockdiag_sparsity(2, self.arcs.n_in, E), ca.vec(self._cb_jac(A)))
+            dY_dw = ca.mtimes(JA, ca.jacobian(ca.vec(A), w))
+            r = ca.substitute(rY, Ysym, Y)
+            g = ca.substitute(gY, Ysym, Y)
+            Jr = ca.substitute(R_w + ca.mtimes(ca.jacobian(rY, ca.vec(Ysym)), dY_dw), Ysym, Y)
+            Jg = ca.substitute(ca.jacobian(gY, w) + ca.mtimes(ca.jacobian(gY, ca.vec(Ysym)), dY_dw), Ysym, Y)
+            self._arc_inputs = ca.Function("arc_inputs", [w], [A])
+        else:
+            r, g, Jr, Jg = rY, gY, R_w, ca.MX(0, self.n_w)
+            self._arc_inputs = None
+        self._r_fun = ca.Function("r", [w], [r])
+        self._g_fun = ca.Function("g", [w], [g])
+        self._jr_fun = ca.Function("Jr", [w], [Jr])
+        self._jg_fun = ca.Function("Jg", [w], [Jg])
+        self.n_g = int(g.numel())
+        self.n_r = int(r.numel())
+        if opts.solver == "ipopt":
+            p = ca.MX.sym("p", 0)
+            lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.n_g)
+            f = 0.5 * ca.dot(r, r)
+            oracle = dict(
+                grad_f=ca.Function("grad_f", [w, p], [f, ca.mtimes(Jr.T, r)], ["x", "p"], ["f", "grad_f_x"]),
+                jac_g=ca.Function("jac_g", [w, p], [g, Jg], ["x", "p"], ["g", "jac_g_x"]),
+                hess_lag=ca.Function("hess_lag", [w, p, lam_f, lam_g], [ca.triu(lam_f * ca.mtimes(Jr.T, Jr))],
+                                     ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"]),
+            )
+            self.ipopt = ca.nlpsol("identify", "ipopt", {"x": w, "f": f, "g": g}, dict(
+                oracle, print_time=False, calc_lam_p=False, calc_multipliers=False, error_on_fail=False,
+                ipopt={"print_level": 0, "sb": "yes", "max_iter": opts.max_iter, "tol": opts.tol,
+                       "hessian_approximation": "exact"},
+            ))
+        return self
+
+    # ---------------------------------------------------------------- numerics
+    def evaluate(self, w, jac: bool = False):
+        """(r, g) or (r, g, Jr, Jg) at w; an arc that cannot be integrated at a trial point
+        gives non-finite values (the point is rejected, the fit goes on)."""
+        r = np.array(self._r_fun(w)).ravel()
+        g = np.array(self._g_fun(w)).ravel()
+        if not jac:
+            return r, g
+        return r, g, _to_csc(self._jr_fun(w), self.n_w), _to_csc(self._jg_fun(w), self.n_w)
+
+    def residuals(self, w) -> np.ndarray:
+        return self.evaluate(w)[0]
+
+    def arc_outputs(self, w: np.ndarray) -> np.ndarray:
+        if not self.E:
+            return np.zeros((5, 0))
+        return self.arcs.evaluate(np.array(self._arc_inputs(w)), self.opts.threads)
+
+    def initial_w(self, theta_values: Mapping[str, float]) -> np.ndarray:
+        """Parameters from ``theta_values``; plateau positions from the frames."""
+        w = np.zeros(self.n_w)
+        th = self.theta.to_scaled(theta_values)
+        w[: self.n_theta] = np.clip(th, self.theta.lo + 1e-9, self.theta.hi - 1e-9)
+        w[self.i_x : self.i_x + self.P] = self.pl_x0 / LENGTH_UNIT
+        w[self.i_phi : self.i_phi + self.n_phase] = 0.5
+        if self.E:
+            self.size_arcs(w)
+        return w
+
+    def size_arcs(self, w: np.ndarray) -> int:
+        """Grow each arc's span (doubling, up to the next trigger) until its block stops;
+        returns how many still move at their horizon."""
+        cap = np.minimum(self.ev_gap, self.opts.max_arc_steps)
+        for _ in range(12):
+            moving = (self.arc_outputs(w)[4] > 0.5) & (self.ev_M < cap)
+            if not moving.any():
+                break
+            self.ev_M = np.where(moving, np.minimum(2 * self.ev_M, cap), self.ev_M)
+            self.build()
+        return int((self.arc_outputs(w)[4] > 0.5).sum())
+
+    def bounds(self, fixed: Mapping[int, float] | None = None):
+        lbx = np.full(self.n_w, -np.inf)
+        ubx = np.full(self.n_w, np.inf)
+        lbx[: self.n_theta], ubx[: self.n_theta] = self.theta.lo, self.theta.hi
+        if not getattr(self.opts, "free_phase", False):
+            # slips recur at the middle of the step interval on average (uniform phase)
+            lbx[self.i_phi : self.n_w] = ubx[self.i_phi : self.n_w] = 0.5
+        for i, v in (fixed or {}).items():
+            lbx[i] = ubx[i] = v
+        return lbx, ubx
+
+    # ---------------------------------------------------------------- solvers
+    def solve(self, w0: np.ndarray, fixed: Mapping[int, float] | None = None) -> dict:
+        if self.opts.solver == "ipopt":
+            return self.solve_ipopt(w0, fixed)
+        return self.solve_gn(w0, fixed)
+
+    def solve_ipopt(self, w0, fixed=None) -> dict:
+        lbx, ubx = self.bounds(fixed)
+        t0 = time.perf_counter()
+        sol = self.ipopt(x0=np.clip(w0, lbx, ubx), lbx=lbx, ubx=ubx, lbg=0, ubg=0)
+        st = self.ipopt.stats()
+        return dict(w=np.array(sol["x"]).ravel(), f=float(sol["f"]), status=st.get("return_status", "?"),
+                    success=bool(st.get("success", False)), iterations=int(st.get("iter_count", -1)),
+                    wall_s=time.perf_counter() - t0)
+
+    def solve_gn(self, w0: np.ndarray, fixed: Mapping[int, float] | None = None) -> dict:
+        """Constrained Gauss–Newton SQP (generalised Gauss–Newton, Bock's method).
+
+        Each iteration solves the KKT system of the linearised problem
+        min ½‖r + Jᵣd‖² s.t. g + J_g d = 0 (sparse LU), parameters at an active bound
+        held there, then backtracks on the ℓ1 merit ½‖r‖² + ν‖g‖₁. A Levenberg–Marquardt
+        term on the parameter block is switched on only when the line search fails (flat
+        directions) and decays after good steps. Converged when the relative parameter
+        step, the constraint violation and the merit change are all below ``tol``.
+        """
+        opts = self.opts
+        t0 = time.perf_counter()
+        lbx, ubx = self.bounds(fixed)
+        w = np.clip(np.asarray(w0, float), lbx, ubx)
+        fixed_mask = lbx == ubx
+        n_th = self.n_theta
+        nu, lm = 1.0, 0.0
+        status, success, it = "Maximum_Iterations_Exceeded", False, 0
+        r, g = self.evaluate(w)
+        for it in range(1, opts.max_iter + 1):
+            r, g, Jr, Jg = self.evaluate(w, jac=True)
+            grad = Jr.T @ r
+            H = (Jr.T @ Jr).tocsc()
+            if lm > 0:
+                diagH = np.maximum(H.diagonal()[:n_th], 1e-12)
+                H = H + sp.diags(np.r_[lm * diagH, np.zeros(self.n_w - n_th)])
+            at_lo, at_hi = w <= lbx + 1e-12, w >= ubx - 1e-12
+            hold = fixed_mask | (at_lo & (grad > 0)) | (at_hi & (grad < 0))
+            d = None
+            for _ in range(20):  # hold variables at a bound that the step pushes outwards
+                free = np.nonzero(~hold)[0]
+                K = sp.bmat([[H[free][:, free], Jg[:, free].T], [Jg[:, free], None]], format="csc")
+                try:
+                    sol = spla.splu(K).solve(np.r_[-grad[free], -g])
+                except RuntimeError:
+                    d = None
+                    break
+                d = np.zeros(self.n_w)
+                d[free] = sol[: len(free)]
+                lam = sol[len(free):]
+                out = ((at_lo & (d < 0)) | (at_hi & (d > 0))) & ~hold
+                if not out.any():
+                    break
+                hold |= out
+            if d is None or not np.all(np.isfinite(d)):
+                lm = max(10 * lm, 1e-3)
+                if lm > 1e8:
+                    status = "Singular_KKT"
+                    break
+                continue
+            with np.errstate(divide="ignore", invalid="ignore"):
+                a_max = float(min(1.0, np.min(np.where(d < 0, (lbx - w) / d, np.inf)),
+                                  np.min(np.where(d > 0, (ubx - w) / d, np.inf))))
+            nu = max(nu, 1.1 * float(np.max(np.abs(lam)))) if lam.size else nu
+            phi0 = 0.5 * r @ r + nu * np.abs(g).sum()
+            dphi = grad @ d - nu * np.abs(g).sum()
+            a, accepted = a_max, False
+            while a > 1e-10:
+                r1, g1 = self.evaluate(w + a * d)
+                phi1 = 0.5 * r1 @ r1 + nu * np.abs(g1).sum()
+                if np.isfinite(phi1) and phi1 <= phi0 + 1e-4 * a * min(dphi, 0.0):
+                    accepted = True
+                    break
+                a *= 0.5
+            if not accepted:
+                log.debug("GN it %d rejected: phi %.6g dphi %.3g |d| %.3g nu %.3g lm %.1e",
+                          it, phi0, dphi, np.max(np.abs(d)), nu, lm)
+                lm = max(10 * lm, 1e-3)
+                if lm > 1e8:
+                    status = "Line_Search_Failed"
+                    break
+                continue
+            step_th = float(np.max(np.abs(a * d[:n_th]))) if n_th else 0.0
+            w, r, g = w + a * d, r1, g1
+            lm = lm / 10 if lm > 1e-3 else 0.0
+            feas = float(np.abs(g).max()) if g.size else 0.0
+            log.debug("GN it %d: f %.8g |g| %.2e dθ %.2e α %.2g lm %.1e", it, 0.5 * r @ r, feas, step_th, a, lm)
+            if step_th < opts.tol and feas < 1e-7 and abs(phi0 - phi1) <= opts.tol * (1 + phi0):
+                status, success = "Solve_Succeeded", True
+                break
+        return dict(w=w, f=0.5 * float(r @ r), status=status, success=success, iterations=it,
+                    wall_s=time.perf_counter() - t0)
+
+    # ---------------------------------------------------------------- mode sequence
+    def refine_triggers(self, w: np.ndarray, shifts=(-2, -1, 1, 2), min_gain: float = 1.0):
+        """Slips the model places a step or two from their detected trigger.
+
+        At a few σ of slip length the step at which a plateau ends is uncertain in the
+        frames; the fit says which step fits. Per slip and shift, with everything else
+        held, the χ² change is scored: frames changing plateau (at the fitted levels),
+        the slip's own trigger residual, its arc's length against the plateau difference,
+        and the next slip's trigger (its contact aged from the shifted arc over the
+        shorter rest). Returns ({run index: trigger steps}, slips moved).
+        """
+        if not self.E:
+            return {}, 0
+        P = self.params(w[: self.n_theta])
+        step = float(self.model.step(P))
+        law = self.law
+        x = w[self.i_x : self.i_x + self.P] * LENGTH_UNIT
+        off = lambda e: (w[self.i_off + self.ev_run[e]] * LENGTH_UNIT) if self.n_off else 0.0  # noqa: E731
+        A0 = np.array(self._arc_inputs(w))
+        Y0 = self.arcs.evaluate(A0, self.opts.threads)
+        S = len(shifts)
+        E = self.E
+        phi_all = w[self.i_phi : self.i_phi + self.n_phase]
+        phase = np.array([phi_all[self.phase_of_run[int(ri)]] for ri in self.ev_run])
+        ev = np.repeat(np.arange(E), S)
+        sh = np.tile(np.array(shifts, float), E)
+        n_new = self.ev_step[ev] + sh
+        prev = self.ev_prev[ev]
+        e0 = step * n_new - x[prev]
+        Pe = dict(P, k=self.ev_k[ev], Nb=self.ev_Nb[ev])
+        A = np.repeat(A0, S, axis=1)
+        A[1] = e0 / LENGTH_UNIT
+        A[2] = self.mid_state(x[prev], e0, Pe)
+        Yc = self.arcs.evaluate(A, self.opts.threads)
+        # own trigger: the previous arc's end aged over the changed rest
+        first = self.ev_first[ev]
+        pv = np.maximum(ev - 1, 0)
+        def pos(z_end, rest_s, fp, xp, e, Pp):
+            return self.position(law.rest(z_end, np.maximum(rest_s, 0), P), xp, e, Pp,
+                                 z_before=law.rest(z_end, np.maximum(rest_s - 1 / fp, 0), P))
+
+        rest = (n_new - self.ev_step[pv] - self.ev_M[pv]) / self.ev_fp[pv]
+        s_own = pos(Y0[1, pv], rest, self.ev_fp[ev], x[prev], e0, Pe)
+        own_new = np.where(first, 0.0, trigger_residual(s_own, phase[ev]) ** 2)
+        valid = first | ((s_own > 0) & (s_own < 1))  # the capacity must be exceeded at n_new only
+        e0_old = step * self.ev_step[ev] - x[prev]
+        rest_old = (self.ev_step[ev] - self.ev_step[pv] - self.ev_M[pv]) / self.ev_fp[pv]
+        s_old = pos(Y0[1, pv], rest_old, self.ev_fp[ev], x[prev], e0_old, Pe)
+        own_now = np.where(first, 0.0, trigger_residual(s_old, phase[ev]) ** 2)
+        # the next slip's trigger, aged from the shifted arc
+        nx = np.minimum(ev + 1, E - 1)
+        has_next = (ev + 1 < E) & ~self.ev_first[nx]
+        e0n = step * self.ev_step[nx] - x[self.ev_prev[nx]]
+        Pn = dict(P, k=self.ev_k[nx], Nb=self.ev_Nb[nx])
+        rest_n_new = (self.ev_step[nx] - n_new - self.ev_M[ev]) / self.ev_fp[ev]
+        rest_n_old = (self.ev_step[nx] - self.ev_step[ev] - self.ev_M[ev]) / self.ev_fp[ev]
+        sn_new = pos(Yc[1], rest_n_new, self.ev_fp[nx], x[self.ev_prev[nx]], e0n, Pn)
+        sn_old = pos(Y0[1, ev], rest_n_old, self.ev_fp[nx], x[self.ev_prev[nx]], e0n, Pn)
+        next_new = np.where(has_next, trigger_residual(sn_new, phase[nx]) ** 2, 0.0)
+        next_now = np.where(has_next, trigger_residual(sn_old, phase[nx]) ** 2, 0.0)
+        # the arc's slip against the plateau difference
+        sig = self.pl_sigma[prev] * np.sqrt(1 / np.maximum(self.pl_n[prev], 1) + 1 / np.maximum(self.pl_n[prev + 1], 1))
+        dx = x[prev + 1] - x[prev]
+        slip_new = ((Yc[0] * LENGTH_UNIT - dx) / sig) ** 2
+        slip_now = ((Y0[0, ev] * LENGTH_UNIT - dx) / sig) ** 2
+        # frames that change plateau, at the fitted levels
+        frames = np.zeros(len(ev))
+        for c in range(len(ev)):
+            e = ev[c]
+            run = self.runs[self.ev_run[e]]
+            evr = run.events
+            lo_n, hi_n = sorted((self.ev_step[e], n_new[c]))
+            sel = (evr.steps >= lo_n) & (evr.steps < hi_n)
+            if not sel.any():
+                continue
+            ee = evr.trace.elongation[sel] - off(e)
+            before = ((ee - (step * evr.steps[sel] - x[prev[c]])) ** 2).sum()
+            after = ((ee - (step * evr.steps[sel] - x[prev[c] + 1])) ** 2).sum()
+            frames[c] = ((before - after) if n_new[c] > self.ev_step[e] else (after - before)) / run.sigma**2
+        gain = (own_now + next_now + slip_now) - (own_new + next_new + slip_new + frames)
+        # keep the triggers in order within their run
+        lo_ok = np.where(first, 1, self.ev_step[pv] + 1)
+        hi_ok = np.where(has_next, self.ev_step[nx] - 1, np.inf)
+        ok = valid & (n_new >= lo_ok) & (n_new <= hi_ok) & np.isfinite(gain)
+        gain = np.where(ok, gain, -np.inf).reshape(E, S)
+        best = np.argmax(gain, axis=1)
+        moved = gain[np.arange(E), best] > min_gain
+        new_steps = self.ev_step.copy()
+        new_steps[moved] += np.array(shifts)[best[moved]]
+        changes = {}
+        for ri in np.unique(self.ev_run[moved]):
+            sel = self.ev_run == ri
+            changes[int(ri)] = np.sort(new_steps[sel]).astype(int)
+        return changes, int(moved.sum())
+
+    def moving_times(self, w: np.ndarray) -> dict:
+        """Per run, how long each slip's block moves after its trigger step (s)."""
+        Y = self.arc_outputs(w)
+        out: dict = {}
+        for e in range(self.E):
+            out.setdefault(int(self.ev_run[e]), []).append(Y[2, e] * 1e-3)
+        return {k: np.array(v) for k, v in out.items()}
+
+    # ---------------------------------------------------------------- statistics
+    def chi2_constant(self) -> float:
+        """χ² of the frames that the compressed residuals leave out (within plateaus)."""
+        return float(sum(r.s_res / r.sigma**2 for r in self.runs if r.kind == "events"))
+
+    def n_observations(self) -> int:
+        """Frames, slip triggers and one phase pseudo-observation per run, creep means."""
+        return int(sum(r.plateau_n.sum() + len(r.trigger_steps) if r.kind == "events" else 1
+                       for r in self.runs))
+
+    def n_effective(self) -> int:
+        """Free dimensions: parameters, offsets, and per events run its first plateau
+        and its trigger phase (the other plateaus follow from the constraints)."""
+        per_run = 2 if getattr(self.opts, "free_phase", False) else 1
+        return self.n_theta + self.n_off + per_run * sum(1 for r in self.runs if r.kind == "events")
+
+    def residual_groups(self) -> dict:
+        """Index ranges of the residual vector: plateaus, slopes, triggers, creep."""
+        n_slope = sum(1 for r in self.runs if r.kind == "events" and r.s_nn > 0)
+        p = self.P
+        t0 = p + n_slope
+        t1 = t0 + self.n_trig + (self.n_phase if self.n_trig else 0)
+        return dict(plateaus=(0, p), slopes=(p, t0), triggers=(t0, t1),
+                    creep=(t1, t1 + len(self.creep_runs)))
+
+    def trigger_runs(self) -> np.ndarray:
+        """Run index of each trigger residual (slips, then one phase residual per run)."""
+        if not self.n_trig:
+            return np.zeros(0, int)
+        phase_runs = sorted(self.phase_of_run, key=self.phase_of_run.get)
+        return np.r_[self.ev_run[self.ev_next], np.array(phase_runs, int)]
+
+    def covariance(self, w: np.ndarray, fixed_idx: Iterable[int] = (), robust: bool = True) -> np.ndarray:
+        """Covariance of the parameters and offsets at the solution w.
+
+        Bread: the constrained Gauss–Newton system, the top-left block of
+        [[JᵣᵀJᵣ, J_gᵀ], [J_g, 0]]⁻¹ (Z(ZᵀHZ)⁻¹Zᵀ, Z the null space of the constraints).
+        ``robust=False``: the model-based covariance, every residual independent with unit
+        variance. ``robust=True`` (default): a sandwich whose meat keeps the model-based
+        information of the frames (plateau levels and slopes, scaled by their reduced χ²)
+        but takes the trigger residuals cluster-robustly by run: slips of a run recur at
+        nearly the same phase of the step interval, so their errors are one shared error
+        rather than many independent ones (Liang–Zeger, with the c/(c − 1) small-sample
+        factor). NaN where the information is singular (undetermined).
+        """
+        r, g, Jr, Jg = self.evaluate(w, jac=True)
+        H = (Jr.T @ Jr).tocsc()
+        fixed_idx = set(fixed_idx)
+        if not getattr(self.opts, "free_phase", False):
+            fixed_idx |= set(range(self.i_phi, self.n_w))
+        keep = np.setdiff1d(np.arange(self.n_w), sorted(fixed_idx))
+        Hk, Jgk = H[keep][:, keep], Jg[:, keep]
+        n, m = Hk.shape[0], Jgk.shape[0]
+        K = sp.bmat([[Hk, Jgk.T], [Jgk, None]], format="csc")
+        want = [i for i in range(self.n_theta + self.n_off) if i in set(keep)]
+        cols = [int(np.searchsorted(keep, i)) for i in want]
+        rhs = np.zeros((n + m, len(cols)))
+        rhs[cols, np.arange(len(cols))] = 1.0
+        try:
+            sol = spla.splu(K).solve(rhs)
+            ok = np.all(np.isfinite(sol))
+        except RuntimeError:
+            ok = False
+        if not ok:
+            Kd = K.toarray()
+            sol = np.linalg.lstsq(Kd, rhs, rcond=1e-12)[0] if np.all(np.isfinite(Kd)) else np.full(rhs.shape, np.nan)
+        X = np.zeros((self.n_w, len(cols)))
+        X[keep] = sol[:n]
+        if robust and self.n_trig:
+            grp = self.residual_groups()
+            t0, t1 = grp["triggers"]
+            ind = np.r_[np.arange(0, t0), np.arange(t1, len(r))]
+            Ji = Jr[ind]
+            ri = r[ind]
+            s2 = float(ri @ ri) / max(len(ri) - self.n_effective(), 1)
+            A_ = np.asarray(Ji @ X)
+            meat_part = max(s2, 1.0) * (A_.T @ A_)
+            Jt = Jr[t0:t1]
+            scores = np.asarray(Jt.multiply(r[t0:t1][:, None]).tocsr().toarray())  # per-residual scores
+            runs = self.trigger_runs()
+            clusters = np.unique(runs)
+            S = np.zeros((len(clusters), self.n_w))
+            for ci, c in enumerate(clusters):
+                S[ci] = scores[runs == c].sum(axis=0)
+            B = S @ X
+            nc = len(clusters)
+            Cw = meat_part + (nc / max(nc - 1, 1)) * (B.T @ B)
+        else:
+            Cw = sol[cols, :]
+        C = np.full((self.n_theta + self.n_off,) * 2, np.nan)
+        for a_, i in enumerate(want):
+            for b_, j in enumerate(want):
+                C[i, j] = Cw[a_, b_]
+        return C

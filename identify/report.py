@@ -1,0 +1,354 @@
+"""Fit results: estimates with honest uncertainty, a readable report, JSON, profiles.
+
+A parameter the data cannot fix is flagged (at a bound, standard error beyond 100 %,
+confounded with another parameter, or a flat profile) and its number is shown as such,
+never as a confident estimate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from .params import SPECS
+
+__all__ = ["ParameterEstimate", "FitResult", "Profile", "build_result", "profile"]
+
+CONFOUNDED = 0.99  # |correlation| above which two parameters are reported as confounded
+UNDETERMINED_REL = 1.0  # relative standard error above which a value is not a number to use
+Z95 = 1.959963984540054
+CHI2_95 = 3.841458820694124  # 95 % quantile of χ² with 1 degree of freedom
+
+
+@dataclass
+class ParameterEstimate:
+    """One parameter: value (SI) ± stderr, 95 % interval, whether it was free."""
+
+    name: str
+    value: float
+    stderr: float | None
+    ci95: tuple | None
+    free: bool
+    unit: str
+    init: float | None = None
+    flag: str | None = None
+    true: float | None = None
+
+    def to_json(self) -> dict:
+        return dict(value=self.value, stderr=self.stderr,
+                    ci95=list(self.ci95) if self.ci95 is not None else None,
+                    free=self.free, unit=self.unit, init=self.init, flag=self.flag, true=self.true)
+
+
+@dataclass
+class Profile:
+    """Profile likelihood of one parameter: Δχ² against its value."""
+
+    name: str
+    values: np.ndarray
+    delta_chi2: np.ndarray
+    ci95: tuple | None
+    flat: bool
+    threshold: float
+
+    def to_json(self) -> dict:
+        return dict(name=self.name, values=self.values.tolist(), delta_chi2=self.delta_chi2.tolist(),
+                    ci95=list(self.ci95) if self.ci95 else None, flat=self.flat, threshold=self.threshold)
+
+    def plot(self, ax=None):
+        from .plots_fit import plot_profile
+
+        return plot_profile(self, ax=ax)
+
+
+@dataclass
+class FitResult:
+    """The outcome of :func:`identify.fit`."""
+
+    parameters: dict
+    correlation: dict
+    covariance: np.ndarray | None
+    chi2: float
+    dof: int
+    redchi: float
+    aic: float
+    bic: float
+    cost: float
+    law: str
+    coating: str
+    n_runs: int
+    n_events: int
+    n_observations: int
+    nlp_size: dict
+    solver: dict
+    multistart: dict
+    runs: list
+    timing: dict
+    start_source: str
+    problem: Any = field(repr=False, default=None)
+    w: np.ndarray | None = field(repr=False, default=None)
+    profiles: dict = field(default_factory=dict)
+
+    # ---------------------------------------------------------------- access
+    @property
+    def values(self) -> dict:
+        return {n: p.value for n, p in self.parameters.items()}
+
+    def __getitem__(self, name: str) -> ParameterEstimate:
+        return self.parameters[name]
+
+    @property
+    def free(self) -> list:
+        return [n for n, p in self.parameters.items() if p.free]
+
+    # ---------------------------------------------------------------- text
+    def report(self, show_correlations: float = 0.5) -> str:
+        s = self.solver
+        lines = [
+            "[[Fit Statistics]]",
+            f"    model              = hybrid stick/slip, {self.law} aging law",
+            f"    coating            = {self.coating} (fixed parameters from its preset)",
+            f"    runs used          = {self.n_runs} ({self.n_events} slips)",
+            f"    observations       = {self.n_observations} (plateau frames, triggers, creep means)",
+            f"    NLP                = {self.nlp_size['variables']} variables, {self.nlp_size['constraints']} "
+            f"constraints, {self.nlp_size['residuals']} residuals",
+            f"    solver             = {s['method']}: {s['status']} after {s['iterations']} "
+            f"iterations, {s['wall_time_s']:.2f} s",
+            f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved by the fit",
+            f"    chi-square         = {self.chi2:.6g}",
+            f"    reduced chi-square = {self.redchi:.6g}  (dof = {self.dof})",
+            f"    Akaike info crit   = {self.aic:.6g}",
+            f"    Bayesian info crit = {self.bic:.6g}",
+            f"    start              = {self.start_source}",
+        ]
+        ms = self.multistart
+        if ms.get("starts", 1) > 1:
+            lines.append(f"    multistart         = best value found {ms['best_found']} of {ms['starts']} times")
+        lines.append("[[Variables]]")
+        width = max(len(n) for n in self.parameters)
+        for n, p in self.parameters.items():
+            sp = SPECS.get(n)
+            unit = p.unit if p.unit != "-" else ""
+            if not p.free:
+                lines.append(f"    {n + ':':<{width + 1}} {p.value:.6g} {unit} (fixed)")
+                continue
+            if p.stderr is not None and np.isfinite(p.stderr) and p.value != 0:
+                rel = 100 * abs(p.stderr / p.value)
+                txt = f"{p.value:.6g} +/- {p.stderr:.3g} ({rel:.2f}%)"
+            else:
+                txt = f"{p.value:.6g} +/- (not available)"
+            ci = f" 95% [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}]" if p.ci95 else ""
+            init = f" (init = {p.init:.5g})" if p.init is not None else ""
+            true = f" [true = {p.true:.6g}]" if p.true is not None else ""
+            lines.append(f"    {n + ':':<{width + 1}} {txt} {unit}{ci}{init}{true}")
+            if p.flag:
+                lines.append(f"    {'':<{width + 1}} ! {p.flag}")
+        corr = []
+        names = list(self.correlation)
+        for i, a in enumerate(names):
+            for b in names[i + 1:]:
+                c = self.correlation[a][b]
+                if c is not None and abs(c) > show_correlations:
+                    corr.append((abs(c), f"    C({a}, {b}) = {c:+.4f}"))
+        lines.append(f"[[Correlations]] (unreported correlations are < {show_correlations:.3f})")
+        lines += [c[1] for c in sorted(corr, reverse=True)] or ["    (none)"]
+        if self.profiles:
+            lines.append("[[Profiles]]")
+            for n, pr in self.profiles.items():
+                ci = f"95% [{pr.ci95[0]:.4g}, {pr.ci95[1]:.4g}]" if pr.ci95 else "no 95% bound within the range"
+                lines.append(f"    {n}: {ci}{' (flat: undetermined)' if pr.flat else ''}")
+        lines.append("[[Runs]]")
+        for r in self.runs:
+            if r["used"]:
+                lines.append(f"    {r['name']}: used, {r['n_slips']} slips, {r['regime']} ({r['kind']})")
+            else:
+                lines.append(f"    {r['name']}: LEFT OUT: {r['reason']}")
+        t = self.timing
+        lines.append("[[Timing]]")
+        lines.append(f"    total {t['total_s']:.2f} s: arcs {t['arc_s']:.2f} s ({t['arc_calls']} batches), "
+                     f"arc Jacobians {t['jac_s']:.2f} s ({t['jac_calls']}), solver linear algebra, "
+                     f"assembly and the rest {max(t['total_s'] - t['arc_s'] - t['jac_s'], 0):.2f} s")
+        return "\n".join(lines)
+
+    def to_json(self) -> dict:
+        return dict(
+            parameters={n: p.to_json() for n, p in self.parameters.items()},
+            correlation=self.correlation,
+            cost=self.cost, chi2=self.chi2, dof=self.dof, redchi=self.redchi, aic=self.aic, bic=self.bic,
+            law=self.law, coating=self.coating, n_runs=self.n_runs, n_events=self.n_events,
+            n_observations=self.n_observations, nlp_size=self.nlp_size, solver=self.solver,
+            multistart=self.multistart, runs=self.runs, timing=self.timing, start=self.start_source,
+            profiles={n: p.to_json() for n, p in self.profiles.items()},
+        )
+
+    # ---------------------------------------------------------------- more work
+    def profile(self, name: str, n_points: int = 13, span: float = 4.0, progress=None) -> Profile:
+        """Profile likelihood of ``name`` (a free parameter); stored in ``profiles``."""
+        pr = profile(self, name, n_points=n_points, span=span, progress=progress)
+        self.profiles[name] = pr
+        if pr.flat and self.parameters[name].flag is None:
+            self.parameters[name].flag = "undetermined: flat profile (the data do not fix it)"
+        if pr.ci95 is not None:
+            self.parameters[name].ci95 = pr.ci95
+        return pr
+
+    def save_plots(self, folder) -> list:
+        from .plots_fit import save_fit_plots
+
+        return save_fit_plots(self, folder)
+
+
+def _scaled_ci(theta, sigma, tm, i):
+    lo, hi = theta - Z95 * sigma, theta + Z95 * sigma
+    if tm.log[i]:
+        return (float(tm.scale[i] * math.exp(lo)), float(tm.scale[i] * math.exp(hi)))
+    return (float(tm.scale[i] * lo), float(tm.scale[i] * hi))
+
+
+def build_result(prob, best: dict, results: list, excluded: list, start: Mapping, start_source: str,
+                 coating: str, true_values: Mapping | None, wall_s: float) -> FitResult:
+    """Statistics, covariance, flags and the run table of a solved :class:`Problem`."""
+    w = best["w"]
+    tm = prob.theta
+    r = prob.residuals(w)
+    chi2 = float(r @ r) + prob.chi2_constant()
+    n_obs = prob.n_observations()
+    k = prob.n_effective()
+    dof = max(n_obs - k, 1)
+    redchi = chi2 / dof
+    robust = getattr(prob.opts, "covariance", "robust") == "robust"
+    C = prob.covariance(w, robust=robust)
+    # the robust covariance carries its own scale; the model-based one is scaled by χ²_red
+    scale = (redchi if prob.opts.scale_covariance else 1.0) if not robust else 1.0
+    th = w[: prob.n_theta]
+    vals = tm.from_scaled(th)
+    d = tm.jacobian_diag(th)
+    params: dict = {}
+    cov_nat = np.full((prob.n_theta, prob.n_theta), np.nan)
+    for i, n in enumerate(tm.names):
+        var = C[i, i] * scale if np.isfinite(C[i, i]) else np.nan
+        sig_th = math.sqrt(var) if var >= 0 and np.isfinite(var) else float("nan")
+        se = abs(d[i]) * sig_th if np.isfinite(sig_th) else None
+        flag = None
+        rng = tm.hi[i] - tm.lo[i]
+        if min(th[i] - tm.lo[i], tm.hi[i] - th[i]) < 1e-6 * max(rng, 1.0):
+            flag = "at a bound: the data push it against its limit"
+        elif se is None or not np.isfinite(se):
+            flag = "undetermined: no finite standard error (singular information)"
+        elif vals[i] != 0 and abs(se / vals[i]) > UNDETERMINED_REL:
+            flag = f"undetermined: standard error {100 * abs(se / vals[i]):.0f} % of the value"
+        ci = _scaled_ci(th[i], sig_th, tm, i) if se is not None and np.isfinite(sig_th) else None
+        params[n] = ParameterEstimate(
+            name=n, value=float(vals[i]), stderr=se, ci95=ci, free=True, unit=SPECS[n].unit,
+            init=float(start.get(n, np.nan)), flag=flag,
+            true=float(true_values[n]) if true_values and n in true_values else None,
+        )
+    for i in range(prob.n_theta):
+        for j in range(prob.n_theta):
+            cov_nat[i, j] = C[i, j] * scale * d[i] * d[j]
+    corr: dict = {}
+    sd = np.sqrt(np.diag(cov_nat))
+    for i, a in enumerate(tm.names):
+        corr[a] = {}
+        for j, b in enumerate(tm.names):
+            c = cov_nat[i, j] / (sd[i] * sd[j]) if sd[i] > 0 and sd[j] > 0 and np.isfinite(sd[i] * sd[j]) else None
+            corr[a][b] = float(np.clip(c, -1, 1)) if c is not None and np.isfinite(c) else None
+    for i, a in enumerate(tm.names):
+        partners = [b for b in tm.names if b != a and corr[a][b] is not None and abs(corr[a][b]) > CONFOUNDED]
+        if partners and params[a].flag is None:
+            params[a].flag = f"confounded with {', '.join(partners)} (|correlation| > {CONFOUNDED})"
+    # the fixed parameters of the law (and any the user fixed), for the record
+    for n in prob.model.friction_names + tuple(k2 for k2 in prob.opts.fixed if k2 not in prob.model.friction_names):
+        if n not in params and n in prob.values:
+            params[n] = ParameterEstimate(name=n, value=float(prob.values[n]), stderr=None, ci95=None,
+                                          free=False, unit=SPECS[n].unit,
+                                          true=float(true_values[n]) if true_values and n in true_values else None)
+    runs = []
+    for rd in prob.runs:
+        ev = rd.events
+        runs.append(dict(name=rd.name, used=True, reason=None, kind=rd.kind,
+                         n_slips=int(len(rd.trigger_steps)) if rd.kind == "events" else 0,
+                         regime=getattr(ev, "regime", "?"), noise_nm=rd.sigma * 1e9))
+    for name, why in excluded:
+        runs.append(dict(name=name, used=False, reason=why, kind=None, n_slips=0, regime=None, noise_nm=None))
+    finite = [x["f"] for x in results if np.isfinite(x["f"])]
+    best_f = min(finite) if finite else float("nan")
+    found = sum(1 for f in finite if abs(f - best_f) <= 1e-6 * max(1.0, abs(best_f)))
+    c = prob.counter
+    solver_s = sum(x["wall_s"] for x in results) + (best["wall_s"] if not any(x is best for x in results) else 0.0)
+    return FitResult(
+        parameters=params, correlation=corr, covariance=cov_nat, chi2=chi2, dof=dof, redchi=redchi,
+        aic=chi2 + 2 * k, bic=chi2 + k * math.log(max(n_obs, 1)), cost=float(best["f"]),
+        law=prob.law.name, coating=coating, n_runs=len(prob.runs), n_events=prob.E,
+        n_observations=n_obs,
+        nlp_size=dict(variables=prob.n_w, constraints=prob.n_g, residuals=int(len(r))),
+        solver=dict(status=best["status"], success=best["success"], iterations=best["iterations"],
+                    wall_time_s=float(wall_s), triggers_moved=int(best.get("triggers_moved", 0)),
+                    method=("Gauss-Newton SQP (Gauss-Newton Hessian, l1-merit line search)"
+                            if prob.opts.solver == "gauss-newton" else "Ipopt (Gauss-Newton Hessian)")),
+        multistart=dict(starts=len(results), best_found=found, costs=[float(x["f"]) for x in results]),
+        runs=runs,
+        timing=dict(total_s=float(wall_s), arc_s=c["arc_s"], jac_s=c["jac_s"], arc_calls=c["arc_calls"],
+                    jac_calls=c["jac_calls"], solver_s=float(solver_s), setup_s=float(max(wall_s - solver_s, 0))),
+        start_source=start_source, problem=prob, w=w,
+    )
+
+
+def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0, progress=None) -> Profile:
+    """Δχ² of the best fit with ``name`` held at each of ``n_points`` values.
+
+    The grid covers ±``span`` standard errors on the parameter's fit scale (log for
+    positive parameters), or, without a finite standard error, a factor e^±2 (log) or
+    its bounds. Each point starts from its neighbour's solution, walking out from the
+    optimum. The 95 % interval is where Δχ² crosses 3.84 (× the reduced χ² when the
+    covariance is scaled); no crossing on a side leaves it open. A profile that never
+    reaches the threshold is flat: the data do not determine the parameter.
+    """
+    prob = result.problem
+    tm = prob.theta
+    if name not in tm.names:
+        raise ValueError(f"profile: {name!r} is not a free parameter ({', '.join(tm.names)})")
+    i = tm.names.index(name)
+    w_best = result.w
+    th0 = w_best[i]
+    p = result.parameters[name]
+    d = tm.jacobian_diag(w_best[: prob.n_theta])[i]
+    sig = (p.stderr / abs(d)) if p.stderr and np.isfinite(p.stderr) and d else None
+    half = span * sig if sig else (2.0 if tm.log[i] else 0.5 * max(tm.hi[i] - tm.lo[i], 1e-6))
+    lo, hi = max(th0 - half, tm.lo[i]), min(th0 + half, tm.hi[i])
+    grid = np.unique(np.concatenate([np.linspace(lo, hi, n_points), [th0]]))
+    chi2_min = result.chi2
+    scale = result.redchi if prob.opts.scale_covariance else 1.0
+    thr = CHI2_95 * max(scale, 1.0)
+    out = {th0: 0.0}
+    for direction in (+1, -1):
+        side = grid[grid > th0] if direction > 0 else grid[grid < th0][::-1]
+        w = w_best.copy()
+        for val in side:
+            w[i] = val
+            sol = prob.solve(w, fixed={i: val})
+            w = sol["w"]
+            rr = prob.residuals(w)
+            out[val] = float(rr @ rr + prob.chi2_constant() - chi2_min)
+            if progress:
+                progress(f"profile {name}: {len(out)}/{len(grid)}")
+    vals = np.array(sorted(out))
+    dchi = np.array([out[v] for v in vals])
+    nat = np.array(tm.scale[i] * (np.exp(vals) if tm.log[i] else vals))
+
+    def crossing(seq_v, seq_d):
+        for a in range(len(seq_d) - 1):
+            if seq_d[a] < thr <= seq_d[a + 1]:
+                f = (thr - seq_d[a]) / (seq_d[a + 1] - seq_d[a])
+                return seq_v[a] + f * (seq_v[a + 1] - seq_v[a])
+        return None
+
+    j0 = int(np.argmin(np.abs(vals - th0)))
+    up = crossing(nat[j0:], dchi[j0:])
+    down = crossing(nat[: j0 + 1][::-1], dchi[: j0 + 1][::-1])
+    flat = bool(np.nanmax(dchi) < thr)
+    ci = (float(down), float(up)) if (down is not None and up is not None) else None
+    return Profile(name=name, values=nat, delta_chi2=dchi, ci95=ci, flat=flat, threshold=thr)
