@@ -11,6 +11,11 @@ from .params import (
 )
 from .simulation import RunConditions, SimulationOptions, SimulationResult, simulate, simulate_run
 from .traces import Trace, TraceFormatError, TraceSet, load_traces
+from .events import RunEvents, extract_events
+from .reduced import reduced_fit
+from .analyze import AnalyzeResult, analyze
+from .fit import FitError, FitOptions, fit
+from .report import FitResult
 
 __all__ = [
     "LAWS",
@@ -30,4 +35,13 @@ __all__ = [
     "TraceFormatError",
     "TraceSet",
     "load_traces",
+    "RunEvents",
+    "extract_events",
+    "reduced_fit",
+    "AnalyzeResult",
+    "analyze",
+    "FitError",
+    "FitOptions",
+    "fit",
+    "FitResult",
 ]

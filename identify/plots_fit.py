@@ -77,8 +77,12 @@ def plot_static_friction(result, ax=None):
     t_all = np.concatenate(t_all) if t_all else np.array([1e-3, 1.0])
     tt = np.logspace(np.log10(max(t_all.min(), 1e-4) / 2), np.log10(t_all.max() * 2), 200)
     z0 = prob.law.rejuvenated_state(P)
-    mu_law = prob.law.static_coefficient(prob.law.rest(z0, tt, P), P)
-    ax.semilogx(tt, mu_law, "k-", lw=1.5, label=f"fitted {prob.law.name} law")
+    # a slip starts when the spring force passes the capacity of a block held by the
+    # stick band: ψ plus the velocity-strengthening term at v_stick
+    band = float(P["A"] * np.log1p(P["v_stick"] / P["vc"]))
+    mu_law = prob.law.static_coefficient(prob.law.rest(z0, tt, P), P) + band
+    ax.semilogx(tt, mu_law, "k-", lw=1.5, label=f"fitted {prob.law.name} law"
+                + (f" + A·ln(1 + v_stick/vc) = {band:.3f}" if band else ""))
     ax.set(xlabel="rest time (s)", ylabel="static friction μs = k·e_peak/Nb")
     ax.legend(fontsize=6, frameon=False)
     return ax
