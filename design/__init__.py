@@ -10,10 +10,13 @@ constraints
 spring_set
     The fewest springs covering a load range for every μ, robust to the etch bias
     (CasADi + Ipopt), judged side by side with the paper's set.
+ranges
+    Operating ranges of a spring: the usable (Nb, fp) points under Table I, the simulated
+    regime and the camera (:func:`operating_ranges`).
 plots
-    Fig. 3 (the Table I region) with spring sets drawn on it.
+    Fig. 3 (the Table I region) with spring sets drawn on it; operating-range maps.
 cli
-    ``python -m design springs ...``.
+    ``python -m design springs ...``, ``python -m design ranges ...``.
 """
 
 from .constraints import (
@@ -28,7 +31,8 @@ from .constraints import (
     require,
     robust_load_range,
 )
-from .plots import plot_design, plot_feasible_region, plot_spring_set
+from .plots import plot_design, plot_feasible_region, plot_operating_ranges, plot_spring_set
+from .ranges import OperatingRanges, UsabilityRules, operating_ranges
 from .spring_set import (
     DEFAULT_SUSPENSIONS,
     MAX_SPRINGS,
@@ -90,8 +94,13 @@ __all__ = [
     "coverable_load_range",
     "design_spring_set",
     "paper_spring_set",
+    # operating ranges
+    "OperatingRanges",
+    "UsabilityRules",
+    "operating_ranges",
     # plots
     "plot_design",
     "plot_feasible_region",
+    "plot_operating_ranges",
     "plot_spring_set",
 ]

@@ -9,8 +9,12 @@ Commands
 springs
     Design the fewest springs covering a normal-load range (:func:`design_spring_set`),
     print the report beside the paper's set, write JSON and optionally a Fig. 3 plot.
-ranges, experiment
-    Placeholders (not implemented yet; exit 2).
+ranges
+    Operating ranges of one spring (:func:`design.ranges.operating_ranges`): the Table I
+    load range and the usable (Nb, fp) grid points from simulated runs; progress on
+    stderr, report on stdout, JSON and optionally the regime-map plot.
+experiment
+    Placeholder (not implemented yet; exit 2).
 """
 
 from __future__ import annotations
@@ -34,6 +38,31 @@ class _UsageError(ValueError):
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str):  # one line, no usage dump, exit code 2 via main
         raise _UsageError(f"{self.prog}: {message}")
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Refuse a bad --plot suffix or a missing output directory before any work."""
+    if args.plot is not None and args.plot.suffix.lower() not in _PLOT_SUFFIXES:
+        raise ValueError(
+            f"--plot {args.plot}: the file must end in one of {', '.join(_PLOT_SUFFIXES)}"
+        )
+    for opt, path in (("--json", args.json), ("--plot", args.plot)):
+        if path is not None and not path.parent.exists():
+            raise ValueError(f"{opt} {path}: directory {path.parent} does not exist")
+
+
+def _write_outputs(args: argparse.Namespace, result) -> None:
+    """Write ``result.to_json()`` to --json and ``result.plot`` to --plot when given."""
+    if args.json is not None:
+        args.json.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
+        print(f"wrote {args.json}")
+    if args.plot is not None:
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(6.5, 5.0), layout="constrained")
+        result.plot(ax=fig.add_subplot())
+        fig.savefig(args.plot, dpi=150)
+        print(f"wrote {args.plot}")
 
 
 # --------------------------------------------------------------------------------------
@@ -70,13 +99,7 @@ def _cmd_springs(args: argparse.Namespace) -> int:
     from .spring_set import MAX_SPRINGS, design_spring_set
     from .springs import ETCH_BIAS_UM
 
-    if args.plot is not None and args.plot.suffix.lower() not in _PLOT_SUFFIXES:
-        raise ValueError(
-            f"--plot {args.plot}: the file must end in one of {', '.join(_PLOT_SUFFIXES)}"
-        )
-    for opt, path in (("--json", args.json), ("--plot", args.plot)):
-        if path is not None and not path.parent.exists():
-            raise ValueError(f"{opt} {path}: directory {path.parent} does not exist")
+    _check_outputs(args)
     result = design_spring_set(
         args.load_range_uN,
         n_springs=args.n_springs,
@@ -84,32 +107,64 @@ def _cmd_springs(args: argparse.Namespace) -> int:
         max_springs=MAX_SPRINGS if args.max_springs is None else args.max_springs,
     )
     print(result.report())
-    if args.json is not None:
-        args.json.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
-        print(f"wrote {args.json}")
-    if args.plot is not None:
-        from matplotlib.figure import Figure
+    _write_outputs(args, result)
+    return 0
 
-        fig = Figure(figsize=(6.5, 5.0), layout="constrained")
-        result.plot(ax=fig.add_subplot())
-        fig.savefig(args.plot, dpi=150)
-        print(f"wrote {args.plot}")
+
+# --------------------------------------------------------------------------------------
+# ranges
+# --------------------------------------------------------------------------------------
+def _add_ranges(sub) -> None:
+    p = sub.add_parser(
+        "ranges",
+        help="operating ranges of one spring: usable (Nb, fp) from Table I and the simulator",
+        description=(
+            "Table I load range of a spring and, from simulated runs over an (Nb, fp) grid, "
+            "where runs are clean stick-slip with resolvable slips (>= 90 nm), at least 20 "
+            "slips in the travel and >= 2 camera frames per step (10 000 fps maximum)."
+        ),
+    )
+    p.add_argument("--spring-constant", type=float, required=True, metavar="K",
+                   help="spring constant k (N/m)")
+    p.add_argument("--coating", default="FOTAS", help="Table II preset: FOTAS or OTS")
+    p.add_argument("--loads-uN", type=float, nargs="+", default=None, metavar="NB",
+                   help="normal loads (µN); default 6 log-spaced over the Table I range")
+    p.add_argument("--fp", type=float, nargs="+", default=None, metavar="FP",
+                   help="step frequencies (Hz); default 10 30 100 300 1000 3000")
+    p.add_argument("--travel-um", type=float, default=100.0, metavar="T",
+                   help="puller travel the 20 slips must fit in (µm, default 100)")
+    p.add_argument("--stick-speed", type=float, default=0.0, metavar="V",
+                   help="stick option v_stick (m/s); 0 = equations as written (default), "
+                   "1e-5 is the README's stick option")
+    p.add_argument("--json", type=Path, default=None, metavar="OUT",
+                   help="write the result as JSON to OUT")
+    p.add_argument("--plot", type=Path, default=None, metavar="FILE",
+                   help="save the regime map to FILE (.png, .pdf or .svg)")
+    p.set_defaults(func=_cmd_ranges)
+
+
+def _cmd_ranges(args: argparse.Namespace) -> int:
+    from .ranges import operating_ranges
+
+    _check_outputs(args)
+
+    def progress(done: int, total: int) -> None:
+        print(f"\r  {done}/{total} runs", end="", file=sys.stderr, flush=True)
+        if done == total:
+            print(file=sys.stderr)
+
+    result = operating_ranges(
+        args.spring_constant, args.coating, loads_uN=args.loads_uN, fps_Hz=args.fp,
+        travel_um=args.travel_um, stick_speed_m_per_s=args.stick_speed, progress=progress,
+    )
+    print(result.report())
+    _write_outputs(args, result)
     return 0
 
 
 # --------------------------------------------------------------------------------------
 # placeholders (filled in later)
 # --------------------------------------------------------------------------------------
-def _add_ranges(sub) -> None:
-    p = sub.add_parser("ranges", help="operating ranges per spring (not implemented yet)")
-    p.set_defaults(func=_cmd_ranges)
-
-
-def _cmd_ranges(args: argparse.Namespace) -> int:
-    print("design ranges: not implemented yet", file=sys.stderr)
-    return 2
-
-
 def _add_experiment(sub) -> None:
     p = sub.add_parser("experiment", help="experiment design (not implemented yet)")
     p.set_defaults(func=_cmd_experiment)

@@ -1,8 +1,9 @@
-"""Plots of the design package (the paper's Fig. 3 and spring sets on it).
+"""Plots of the design package (the paper's Fig. 3, spring sets, operating ranges).
 
 Every function takes ``ax=None`` (a new figure is made with pyplot when None) and returns
 the axes. Axes are in display units: spring constant k in N/m (x, log), normal load Nb in
-µN (y, log). Nothing here calls ``plt.show()``.
+µN (y, log); step frequency fp in Hz (x, log) for operating ranges. Nothing here calls
+``plt.show()``.
 """
 
 from __future__ import annotations
@@ -14,9 +15,10 @@ import numpy as np
 from . import constraints as tc
 
 if TYPE_CHECKING:  # pragma: no cover
+    from .ranges import OperatingRanges
     from .spring_set import SpringSet, SpringSetResult
 
-__all__ = ["plot_feasible_region", "plot_spring_set", "plot_design"]
+__all__ = ["plot_feasible_region", "plot_spring_set", "plot_design", "plot_operating_ranges"]
 
 _UN = 1e6  # N -> µN
 
@@ -130,3 +132,62 @@ def plot_design(result: "SpringSetResult", ax=None):
         f"Table I region, etch bias ±{result.etch_bias_um:g} µm per edge", fontsize="medium"
     )
     return ax
+
+
+def plot_operating_ranges(ranges: "OperatingRanges", ax=None):
+    """Regime map of one spring over (fp, Nb) with its usable points (issue 4, item 4).
+
+    Cells are coloured by the simulated regime (:func:`identify.plots.plot_regime_map`;
+    white where the camera rule excluded fp before simulating). Cells excluded by a rule
+    other than the regime are hatched (``xx`` camera, ``//`` slip length, slip count or
+    Table I); usable cells carry a dot. Dashed lines: the spring's Table I Nb limits.
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch, Rectangle
+
+    from identify.plots import plot_regime_map
+
+    ax = _axes(ax)
+    # OperatingRanges carries the attributes plot_regime_map reads from a RegimeMap.
+    plot_regime_map(ranges, ax=ax)
+    fe, le = _cell_edges(ranges.step_frequencies_Hz), _cell_edges(ranges.normal_loads_uN)
+    seen = set()
+    for i, nb in enumerate(ranges.normal_loads_uN):
+        for j, fp in enumerate(ranges.step_frequencies_Hz):
+            rules = [r for r, _ in ranges.failed[i, j]]
+            if not rules:
+                ax.plot(fp, nb, "o", color="k", mec="w", ms=5)
+                seen.add("usable")
+            elif rules != ["regime"]:
+                hatch = "xx" if "camera" in rules else "//"
+                ax.add_patch(Rectangle((fe[j], le[i]), fe[j + 1] - fe[j], le[i + 1] - le[i],
+                                       fill=False, lw=0, ec="0.2", hatch=hatch))
+                seen.add(hatch)
+    lo, hi = ranges.normal_load_range_uN
+    for y in (lo, hi):
+        ax.axhline(y, color="k", lw=1.2, ls="--")
+    y0, y1 = ax.get_ylim()
+    ax.set_ylim(min(y0, lo / 1.3), max(y1, hi * 1.3))
+    old = ax.get_legend()
+    handles = list(old.legend_handles) if old is not None else []
+    extra = {
+        "//": Patch(fill=False, hatch="//", ec="0.2", label="excluded: slip, count or Table I"),
+        "xx": Patch(fill=False, hatch="xx", ec="0.2", label="excluded: camera (not simulated)"),
+        "usable": Line2D([], [], ls="", marker="o", color="k", mec="w", label="usable"),
+    }
+    handles += [h for key, h in extra.items() if key in seen]
+    handles.append(Line2D([], [], ls="--", color="k", label="Table I Nb limits"))
+    ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return ax
+
+
+def _cell_edges(v: np.ndarray) -> np.ndarray:
+    """Cell edges on a log axis around grid values ``v`` (as the regime map draws them)."""
+    lv = np.log10(np.asarray(v, float))
+    d0 = (lv[1] - lv[0]) / 2 if lv.size > 1 else 0.5
+    d1 = (lv[-1] - lv[-2]) / 2 if lv.size > 1 else 0.5
+    return 10 ** np.concatenate([[lv[0] - d0], (lv[1:] + lv[:-1]) / 2, [lv[-1] + d1]])

@@ -63,7 +63,7 @@ def test_bad_input_exit_2_one_line(argv, match, capsys):
     assert match in one_error_line(capsys)
 
 
-@pytest.mark.parametrize("command", ["ranges", "experiment"])
+@pytest.mark.parametrize("command", ["experiment"])
 def test_placeholders(command, capsys):
     assert main([command]) == 2
     assert "not implemented yet" in capsys.readouterr().err

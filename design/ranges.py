@@ -1,0 +1,400 @@
+"""Operating ranges of one spring: where in (Nb, fp) a run is worth recording.
+
+A grid point (Nb, fp) is *usable* when every rule below holds (issue 4, item 4):
+
+==============  =======================================================================
+rule            test
+==============  =======================================================================
+``table_i``     Nb inside the spring's Table I range (:func:`allowed_load_range`)
+``camera``      ``frames_per_step·fp <= max_frame_rate`` (2 frames per step, 10 000 fps)
+``regime``      the simulated run is clean stick-slip (not creep, stepping or no slip)
+``slip_length`` mean slip length >= ``min_slip`` (90 nm, the camera's resolution)
+``slip_count``  at least ``min_slips`` slips fit in the puller travel
+==============  =======================================================================
+
+The camera rule depends on fp only, so those points are excluded before simulating. The
+regimes come from :func:`identify.regimes.regime_map`: one simulated run per point over the
+whole travel, so the slip count is counted, not extrapolated.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from identify.params import parameter_set
+from identify.regimes import regime_map
+
+from . import constraints as tc
+
+__all__ = ["DEFAULT_STEP_FREQUENCIES_HZ", "OperatingRanges", "UsabilityRules", "operating_ranges"]
+
+DEFAULT_STEP_FREQUENCIES_HZ = (10.0, 30.0, 100.0, 300.0, 1000.0, 3000.0)
+DEFAULT_N_LOADS = 6
+NOT_SIMULATED = "not simulated"
+
+_REGIME_CODES = {"stick-slip": "S", "stepping": "t", "creep": "C", "no-slip": "-",
+                 "error": "!", NOT_SIMULATED: "c"}
+_RULE_CODES = {"table_i": "T", "camera": "c", "slip_length": "r", "slip_count": "n"}
+
+
+def _positive(name: str, value: float, unit: str = "", what: str = "") -> float:
+    v = float(value)
+    if not math.isfinite(v) or v <= 0:
+        u = f" {unit}" if unit else ""
+        raise ValueError(f"{name} = {v:g}{u}: {what or 'must be'} finite and > 0")
+    return v
+
+
+@dataclass(frozen=True)
+class UsabilityRules:
+    """The measurement rules a usable run must pass (besides Table I and the regime).
+
+    Parameters
+    ----------
+    min_slip_m : float
+        Smallest mean slip length the camera resolves, m (90 nm noise, MODEL.md).
+    min_slips : int
+        Slips needed within the travel.
+    max_frame_rate_Hz : float
+        Camera's maximum frame rate, frames/s.
+    frames_per_step : float
+        Frames wanted per puller step.
+    """
+
+    min_slip_m: float = 90e-9
+    min_slips: int = 20
+    max_frame_rate_Hz: float = 10_000.0
+    frames_per_step: float = 2.0
+
+    def __post_init__(self) -> None:
+        _positive("min_slip_m", self.min_slip_m)
+        _positive("max_frame_rate_Hz", self.max_frame_rate_Hz)
+        _positive("frames_per_step", self.frames_per_step)
+        if int(self.min_slips) != self.min_slips or self.min_slips < 1:
+            raise ValueError(f"min_slips = {self.min_slips!r}: must be a positive integer")
+
+    @property
+    def max_step_frequency_Hz(self) -> float:
+        """Highest fp the camera can follow at ``frames_per_step`` frames per step."""
+        return self.max_frame_rate_Hz / self.frames_per_step
+
+
+@dataclass
+class OperatingRanges:
+    """Usable (Nb, fp) points of one spring, and why every other point is not.
+
+    Attributes
+    ----------
+    coating : str
+    spring_constant_N_per_m : float
+    stick_speed_m_per_s : float
+        The stick option (0: equations as written).
+    travel_um : float
+        Puller travel the slip count refers to, µm.
+    rules : UsabilityRules
+    normal_load_range_uN : (float, float)
+        Table I range of the spring, µN.
+    normal_loads_uN, step_frequencies_Hz : ndarray
+        Grid axes, ascending.
+    regimes : ndarray of str, shape (n_loads, n_freqs)
+        ``stick-slip``, ``stepping``, ``creep``, ``no-slip``, ``error`` or ``not simulated``.
+    failed : ndarray of tuple, shape (n_loads, n_freqs)
+        Per point, the failed rules as ``(rule, message)`` pairs; empty when usable.
+    mean_slip_um : ndarray
+        Mean simulated slip length, µm (NaN where not simulated or without slips).
+    n_slips : ndarray of int
+        Slips in the simulated run over ``travel_um`` (0 where not simulated).
+    errors : list of str
+        Simulation failures (those points are marked ``error``).
+    """
+
+    coating: str
+    spring_constant_N_per_m: float
+    stick_speed_m_per_s: float
+    travel_um: float
+    rules: UsabilityRules
+    normal_load_range_uN: tuple[float, float]
+    normal_loads_uN: np.ndarray
+    step_frequencies_Hz: np.ndarray
+    regimes: np.ndarray
+    failed: np.ndarray
+    mean_slip_um: np.ndarray
+    n_slips: np.ndarray
+    errors: list = field(default_factory=list)
+
+    @property
+    def usable(self) -> np.ndarray:
+        """Boolean array (n_loads, n_freqs): True where every rule holds."""
+        return np.vectorize(lambda f: not f, otypes=[bool])(self.failed)
+
+    def reason(self, i: int, j: int) -> str:
+        """Why point (i, j) is unusable ('' when usable), e.g. ``creep; only 3 slips in 100 µm``."""
+        return "; ".join(msg for _, msg in self.failed[i, j])
+
+    def usable_fp_ranges_Hz(self, i: int) -> list[tuple[float, float]]:
+        """Usable fp intervals at load i: runs of neighbouring usable grid frequencies, Hz."""
+        out: list[tuple[float, float]] = []
+        prev = False
+        for f, ok in zip(self.step_frequencies_Hz, self.usable[i]):
+            if ok and prev:
+                out[-1] = (out[-1][0], float(f))
+            elif ok:
+                out.append((float(f), float(f)))
+            prev = bool(ok)
+        return out
+
+    @property
+    def usable_region(self) -> dict:
+        """Overall usable region: Nb and fp spans (None when empty) and the point count."""
+        ok = self.usable
+        rows, cols = np.nonzero(ok)
+        return {
+            "normal_load_range_uN": _span(self.normal_loads_uN[rows]),
+            "step_frequency_range_Hz": _span(self.step_frequencies_Hz[cols]),
+            "n_usable": int(ok.sum()),
+            "n_points": int(ok.size),
+        }
+
+    def _code(self, i: int, j: int) -> str:
+        if not self.failed[i, j]:
+            return "ok"
+        rule = self.failed[i, j][0][0]
+        if rule == "regime" or rule == "camera":
+            return _REGIME_CODES.get(self.regimes[i, j], "?")
+        return _RULE_CODES.get(rule, "?")
+
+    def report(self) -> str:
+        """Readable text: the rules, the grid as codes, usable fp per load, each exclusion."""
+        r = self.rules
+        lo, hi = self.normal_load_range_uN
+        opt = ("equations as written" if not self.stick_speed_m_per_s
+               else f"stick option {self.stick_speed_m_per_s:g} m/s")
+        lines = [
+            f"Operating ranges: {self.coating}, k = {self.spring_constant_N_per_m:g} N/m ({opt})",
+            f"Table I: Nb in [{lo:.3g}, {hi:.3g}] µN",
+            (f"rules: clean stick-slip; mean slip >= {r.min_slip_m * 1e6:g} µm; "
+             f">= {r.min_slips} slips in {self.travel_um:g} µm; {r.frames_per_step:g} frames/step"
+             f" <= {r.max_frame_rate_Hz:g} fps (fp <= {r.max_step_frequency_Hz:g} Hz)"),
+            "",
+            "  Nb (µN) \\ fp (Hz) " + " ".join(f"{f:>6g}" for f in self.step_frequencies_Hz),
+        ]
+        for i, nb in enumerate(self.normal_loads_uN):
+            codes = " ".join(f"{self._code(i, j):>6}" for j in range(len(self.step_frequencies_Hz)))
+            lines.append(f"  {nb:>17.3g} {codes}")
+        lines += [
+            ("  ok usable; C creep, t stepping, - no slip, ! simulation error, "
+             "c camera too slow, r slips too short, n too few slips, T outside Table I"),
+            "",
+            "Usable fp per load:",
+        ]
+        for i, nb in enumerate(self.normal_loads_uN):
+            rng = ", ".join(f"{a:g} Hz" if a == b else f"{a:g}-{b:g} Hz"
+                            for a, b in self.usable_fp_ranges_Hz(i))
+            lines.append(f"  Nb = {nb:.3g} µN: {rng or 'none'}")
+        reg = self.usable_region
+        if reg["n_usable"]:
+            (a, b), (c, d) = reg["normal_load_range_uN"], reg["step_frequency_range_Hz"]
+            nb = f"{a:.3g}" if a == b else f"{a:.3g}-{b:.3g}"
+            fp = f"{c:g}" if c == d else f"{c:g}-{d:g}"
+            lines.append(f"Usable points span Nb {nb} µN, fp {fp} Hz "
+                         f"({reg['n_usable']} of {reg['n_points']} points)")
+        else:
+            lines.append(f"Usable points: none of the {reg['n_points']} points")
+        lines += ["", "Excluded points:"]
+        for i, nb in enumerate(self.normal_loads_uN):
+            for j, fp in enumerate(self.step_frequencies_Hz):
+                if self.failed[i, j]:
+                    lines.append(f"  Nb = {nb:.3g} µN, fp = {fp:g} Hz: {self.reason(i, j)}")
+        lines += [f"error: {e}" for e in self.errors]
+        return "\n".join(lines)
+
+    def to_json(self) -> dict:
+        """JSON-ready dict: Table I range, rules, grid, per-point verdicts, per-load fp ranges."""
+        def num(x: float):
+            return float(x) if np.isfinite(x) else None
+
+        points = [
+            {
+                "normal_load_uN": float(nb),
+                "step_frequency_Hz": float(fp),
+                "regime": None if self.regimes[i, j] == NOT_SIMULATED else str(self.regimes[i, j]),
+                "usable": not self.failed[i, j],
+                "reason": self.reason(i, j) or None,
+                "failed_rules": [rule for rule, _ in self.failed[i, j]],
+                "mean_slip_um": num(self.mean_slip_um[i, j]),
+                "n_slips": int(self.n_slips[i, j]) if self.regimes[i, j] != NOT_SIMULATED else None,
+            }
+            for i, nb in enumerate(self.normal_loads_uN)
+            for j, fp in enumerate(self.step_frequencies_Hz)
+        ]
+        return {
+            "spring_constant_N_per_m": self.spring_constant_N_per_m,
+            "coating": self.coating,
+            "stick_speed_m_per_s": self.stick_speed_m_per_s,
+            "travel_um": self.travel_um,
+            "normal_load_range_uN": [float(x) for x in self.normal_load_range_uN],
+            "rules": {
+                "min_slip_um": self.rules.min_slip_m * 1e6,
+                "min_slips": int(self.rules.min_slips),
+                "max_frame_rate_Hz": self.rules.max_frame_rate_Hz,
+                "frames_per_step": self.rules.frames_per_step,
+                "max_step_frequency_Hz": self.rules.max_step_frequency_Hz,
+            },
+            "normal_loads_uN": self.normal_loads_uN.tolist(),
+            "step_frequencies_Hz": self.step_frequencies_Hz.tolist(),
+            "points": points,
+            "loads": [
+                {"normal_load_uN": float(nb),
+                 "usable_fp_ranges_Hz": [list(r) for r in self.usable_fp_ranges_Hz(i)]}
+                for i, nb in enumerate(self.normal_loads_uN)
+            ],
+            "usable_region": self.usable_region,
+            "errors": list(self.errors),
+        }
+
+    def plot(self, ax=None):
+        """Regime map over (Nb, fp) with the excluded points hatched and Table I's Nb limits."""
+        from .plots import plot_operating_ranges
+
+        return plot_operating_ranges(self, ax=ax)
+
+
+def _span(v: np.ndarray) -> list[float] | None:
+    return [float(v.min()), float(v.max())] if v.size else None
+
+
+def _grid(values, default, name: str, unit: str) -> np.ndarray:
+    v = np.asarray(default if values is None else values, float).ravel()
+    if not v.size:
+        raise ValueError(f"{name}: give at least one value")
+    for x in v:
+        _positive(name, x, unit, "every value must be")
+    return np.unique(v)
+
+
+def operating_ranges(
+    spring_constant_N_per_m: float,
+    coating: str = "FOTAS",
+    *,
+    loads_uN: Sequence[float] | None = None,
+    fps_Hz: Sequence[float] | None = None,
+    travel_um: float = 100.0,
+    stick_speed_m_per_s: float = 0.0,
+    min_slip_m: float = 90e-9,
+    min_slips: int = 20,
+    max_frame_rate_Hz: float = 10_000.0,
+    frames_per_step: float = 2.0,
+    progress: Callable[[int, int], None] | None = None,
+) -> OperatingRanges:
+    """Simulate a (Nb, fp) grid for one spring and mark where runs are usable.
+
+    Parameters
+    ----------
+    spring_constant_N_per_m : float
+        k, N/m; must lie in Table I's [0.01, 100] N/m.
+    coating : str
+        Table II preset, ``FOTAS`` or ``OTS``.
+    loads_uN : sequence of float, optional
+        Normal loads Nb, µN (default: 6 log-spaced over the Table I range).
+    fps_Hz : sequence of float, optional
+        Step frequencies fp, Hz (default 10, 30, 100, 300, 1000, 3000).
+    travel_um : float
+        Puller travel in which ``min_slips`` must fit, µm (at most Table I's 100 µm).
+    stick_speed_m_per_s : float
+        Stick option ``v_stick``, m/s; 0 keeps the equations as written (README: 1e-5).
+    min_slip_m, min_slips, max_frame_rate_Hz, frames_per_step
+        See :class:`UsabilityRules`.
+    progress : callable(done, total), optional
+        Called after each simulated run.
+
+    Returns
+    -------
+    OperatingRanges
+
+    Raises
+    ------
+    ValueError
+        For a non-positive or non-finite k, load, fp or travel, a k outside Table I, an
+        unknown coating or a bad rule value; the message names the parameter and the rule.
+    """
+    k = _positive("k", spring_constant_N_per_m, "N/m", "the spring constant must be")
+    if not (tc.K_MIN.satisfied(0.0, k, 0.5) and tc.K_MAX.satisfied(0.0, k, 0.5)):
+        raise ValueError(
+            f"k = {k:g} N/m: Table I allows {tc.K_MIN.name} "
+            f"({tc.K_MIN.reason}) and {tc.K_MAX.name} ({tc.K_MAX.reason})"
+        )
+    # Bad coating or stick speed must fail here: inside the grid every run would fail alone.
+    v_stick = float(stick_speed_m_per_s)
+    if not math.isfinite(v_stick):
+        raise ValueError(f"stick_speed_m_per_s = {stick_speed_m_per_s!r}: must be finite")
+    parameter_set(coating, {"v_stick": v_stick})
+    rules = UsabilityRules(min_slip_m, min_slips, max_frame_rate_Hz, frames_per_step)
+    travel = _positive("travel_um", travel_um, "µm", "the travel must be")
+    if travel * 1e-6 > tc.PULLER_TRAVEL.bound * (1 + tc.RTOL):
+        raise ValueError(
+            f"travel_um = {travel:g} µm: must be <= "
+            f"{tc.PULLER_TRAVEL.bound * 1e6:g} µm ({tc.PULLER_TRAVEL.reason})"
+        )
+
+    lo, hi = (float(x) * 1e6 for x in tc.allowed_load_range(k))
+    loads = _grid(loads_uN, np.geomspace(lo, hi, DEFAULT_N_LOADS), "Nb", "µN")
+    fps = _grid(fps_Hz, DEFAULT_STEP_FREQUENCIES_HZ, "fp", "Hz")
+    shape = (loads.size, fps.size)
+    regimes = np.full(shape, NOT_SIMULATED, dtype=object)
+    failed = np.empty(shape, dtype=object)  # every cell is set below
+    slip = np.full(shape, np.nan)
+    count = np.zeros(shape, int)
+    errors: list[str] = []
+
+    # The camera rule needs no simulation: those frequencies are never run.
+    camera_ok = fps * rules.frames_per_step <= rules.max_frame_rate_Hz * (1 + 1e-12)
+    if camera_ok.any():
+        # Each run covers the whole travel, so the slip count is counted, not extrapolated:
+        # a short run scaled up gave 19.7 slips against 20 simulated over 100 µm at
+        # Nb = 34.5 µN, k = 2.13 N/m - right at the threshold - while the whole default
+        # grid costs ~10 s.
+        m = regime_map(coating, k, loads, fps[camera_ok], travel_um=travel,
+                       stick_speed_m_per_s=v_stick, progress=progress)
+        regimes[:, camera_ok] = m.regimes
+        slip[:, camera_ok] = m.mean_slip_um
+        count[:, camera_ok] = m.n_slips
+        errors += m.errors
+
+    for i, nb in enumerate(loads):
+        in_table = lo * (1 - tc.RTOL) <= nb <= hi * (1 + tc.RTOL)
+        for j, fp in enumerate(fps):
+            f: list[tuple[str, str]] = []
+            if not in_table:
+                f.append(("table_i", f"Table I: Nb = {nb:.3g} µN outside {lo:.3g}-{hi:.3g} µN"))
+            if not camera_ok[j]:
+                f.append(("camera", (f"camera: {rules.frames_per_step:g} frames/step needs "
+                                     f"{fp * rules.frames_per_step:g} fps > "
+                                     f"{rules.max_frame_rate_Hz:g}")))
+                failed[i, j] = tuple(f)
+                continue
+            reg = regimes[i, j]
+            if reg != "stick-slip":
+                what = {"no-slip": f"no slip in {travel:g} µm",
+                        "error": "simulation failed (see errors)"}.get(reg, reg)
+                f.append(("regime", what))
+            # A creep run's "slips" are long creeping phases: length and count say nothing.
+            if reg in ("stick-slip", "stepping"):
+                if slip[i, j] * 1e-6 < rules.min_slip_m:
+                    f.append(("slip_length",
+                              f"slips {slip[i, j]:.3g} µm < {rules.min_slip_m * 1e6:g} µm"))
+                if count[i, j] < rules.min_slips:
+                    n = count[i, j]
+                    f.append(("slip_count",
+                              f"only {n} slip{'' if n == 1 else 's'} in {travel:g} µm"))
+            failed[i, j] = tuple(f)
+
+    return OperatingRanges(
+        coating=coating.upper(), spring_constant_N_per_m=k, stick_speed_m_per_s=v_stick,
+        travel_um=travel, rules=rules, normal_load_range_uN=(lo, hi), normal_loads_uN=loads,
+        step_frequencies_Hz=fps, regimes=regimes.astype(str), failed=failed, mean_slip_um=slip,
+        n_slips=count, errors=errors,
+    )

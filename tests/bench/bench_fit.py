@@ -1,0 +1,185 @@
+"""Benchmarks of the full-model fit (issue: identification, item 8). Not timed tests:
+they print what they measure.
+
+    python tests/bench/bench_fit.py calibration --repeats 50 [--workers 2]
+    python tests/bench/bench_fit.py speed [--runs 2,5,10] [--steps 2000]
+
+calibration: one noiseless design of runs is simulated once; each repeat draws new 90 nm
+camera noise (seed = repeat), fits from a start 20 % off, and records whether each 95 %
+interval contains the truth. Prints, per parameter, the coverage (target 90-98 %), the
+mean error and the spread of the estimates against the mean reported standard error.
+
+speed: joint fits of N runs of about ``--steps`` puller steps each (FOTAS, 90 nm), the
+time per fit, its growth with N (the exponent of a power-law fit; 1 = linear), and where
+the time goes (arc integrations, arc Jacobians, the rest: assembly and linear algebra).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # "on one core"
+
+import numpy as np  # noqa: E402
+
+V_STICK = 1e-5
+FREE = ("mu_max", "mu_min", "tau", "A")
+# k (N/m), Nb (µN), fp (Hz): rest times from ~60 ms (near τ) to ~0.7 s
+CAL_CONDITIONS = [(2.13, 5, 100), (20.3, 30, 30), (20.3, 30, 100), (2.13, 10, 100)]
+SPEED_CONDITIONS = [(2.13, 5, 100), (2.13, 5, 30), (2.13, 10, 100), (2.13, 20, 300), (20.3, 60, 100),
+                    (20.3, 30, 100), (20.3, 30, 30), (2.13, 30, 10), (20.3, 30, 60), (2.13, 10, 30)]
+
+
+def _simulate(conditions, coating, travel_um):
+    from identify import SimulationOptions, simulate
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return [simulate(coating, spring_constant_N_per_m=k, normal_load_uN=nb, step_frequency_Hz=fp,
+                         travel_um=travel_um, stick_speed_m_per_s=V_STICK, options=SimulationOptions(record=False))
+                for k, nb, fp in conditions]
+
+
+def _fit(traces, coating, start):
+    from identify import FitOptions, fit
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return fit(traces, coating=coating,
+                   options=FitOptions(start=start, fixed={"v_stick": V_STICK}, threads=1))
+
+
+def _truth(coating):
+    from identify.params import parameter_set
+
+    return dict(parameter_set(coating), v_stick=V_STICK)
+
+
+def _one_repeat(args):
+    coating, travel_um, seed = args
+    sims = _simulate(CAL_CONDITIONS, coating, travel_um)
+    traces = [s.sample(noise_nm=90, seed=1000 * seed + i, name=f"r{i}") for i, s in enumerate(sims)]
+    truth = _truth(coating)
+    start = {"mu_max": truth["mu_max"] / 1.2, "mu_min": truth["mu_min"] * 1.2,
+             "tau": truth["tau"] * 1.2, "A": truth["A"] * 1.2}
+    t0 = time.perf_counter()
+    try:
+        res = _fit(traces, coating, start)
+    except Exception as err:  # one failed repeat is data, not a crash
+        return dict(seed=seed, error=f"{type(err).__name__}: {err}")
+    out = dict(seed=seed, wall_s=time.perf_counter() - t0, success=bool(res.solver["success"]),
+               iterations=res.solver["iterations"])
+    for n in FREE:
+        p = res[n]
+        out[n] = dict(value=p.value, stderr=p.stderr, ci95=list(p.ci95) if p.ci95 else None)
+    return out
+
+
+def calibration(repeats: int, coating: str, travel_um: float, workers: int) -> dict:
+    from concurrent.futures import ProcessPoolExecutor
+
+    truth = _truth(coating)
+    jobs = [(coating, travel_um, s) for s in range(repeats)]
+    rows = []
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=workers) as ex:
+        for i, row in enumerate(ex.map(_one_repeat, jobs), 1):
+            rows.append(row)
+            print(f"\r  repeat {i}/{repeats} ({time.perf_counter() - t0:.0f} s)", end="", file=sys.stderr, flush=True)
+    print(file=sys.stderr)
+    ok = [r for r in rows if "error" not in r]
+    summary = {}
+    print(f"calibration: {coating}, {len(CAL_CONDITIONS)} runs x {travel_um:g} µm, 90 nm, start 20 % off; "
+          f"{len(ok)}/{repeats} repeats fitted ({sum(r['success'] for r in ok)} converged)")
+    print(f"  {'param':8} {'coverage':>9} {'mean err':>9} {'sd(est)':>9} {'mean se':>9} {'sd/se':>6}")
+    for n in FREE:
+        v = np.array([r[n]["value"] for r in ok])
+        se = np.array([r[n]["stderr"] if r[n]["stderr"] is not None else np.nan for r in ok], float)
+        cover = np.array([r[n]["ci95"] is not None and r[n]["ci95"][0] <= truth[n] <= r[n]["ci95"][1] for r in ok])
+        rel = (v - truth[n]) / truth[n]
+        summary[n] = dict(coverage=float(cover.mean()) if len(ok) else None, mean_rel_error=float(rel.mean()),
+                          sd_rel=float(np.std(rel, ddof=1)) if len(ok) > 1 else None,
+                          mean_rel_stderr=float(np.nanmean(se / truth[n])))
+        s = summary[n]
+        print(f"  {n:8} {100 * s['coverage']:8.0f}% {100 * s['mean_rel_error']:+8.2f}% "
+              f"{100 * (s['sd_rel'] or np.nan):8.2f}% {100 * s['mean_rel_stderr']:8.2f}% "
+              f"{(s['sd_rel'] or np.nan) / s['mean_rel_stderr']:6.2f}")
+    walls = [r["wall_s"] for r in ok]
+    if walls:
+        print(f"  time per fit: median {np.median(walls):.1f} s (workers {workers})")
+    errors = [r for r in rows if "error" in r]
+    for r in errors:
+        print(f"  repeat {r['seed']} failed: {r['error']}")
+    return dict(coating=coating, repeats=repeats, travel_um=travel_um, conditions=CAL_CONDITIONS,
+                summary=summary, rows=rows)
+
+
+def speed(n_runs_list, steps: int, coating: str) -> dict:
+    truth = _truth(coating)
+    start = {"mu_max": truth["mu_max"] / 1.2, "mu_min": truth["mu_min"] * 1.2,
+             "tau": truth["tau"] * 1.2, "A": truth["A"] * 1.2}
+    travel = steps * 46e-3
+    n_max = max(n_runs_list)
+    conds = [SPEED_CONDITIONS[i % len(SPEED_CONDITIONS)] for i in range(n_max)]
+    print(f"speed: simulating {n_max} runs of {steps} steps ({travel:.0f} µm)", file=sys.stderr)
+    sims = _simulate(conds, coating, travel)
+    rows = []
+    print(f"  {'runs':>4} {'slips':>6} {'wall s':>8} {'its':>4} {'arcs s':>8} {'jac s':>7} {'rest s':>8}  status")
+    for n in n_runs_list:
+        traces = [s.sample(noise_nm=90, seed=i, name=f"r{i}") for i, s in enumerate(sims[:n])]
+        t0 = time.perf_counter()
+        res = _fit(traces, coating, start)
+        wall = time.perf_counter() - t0
+        t = res.timing
+        row = dict(runs=n, slips=res.n_events, wall_s=wall, iterations=res.solver["iterations"],
+                   arc_s=t["arc_s"], jac_s=t["jac_s"], rest_s=max(wall - t["arc_s"] - t["jac_s"], 0),
+                   status=res.solver["status"])
+        rows.append(row)
+        print(f"  {n:4d} {row['slips']:6d} {wall:8.1f} {row['iterations']:4d} {row['arc_s']:8.1f} "
+              f"{row['jac_s']:7.1f} {row['rest_s']:8.1f}  {row['status']}", flush=True)
+    out = dict(coating=coating, steps=steps, rows=rows)
+    if len(rows) >= 2:
+        x = np.log([r["runs"] for r in rows])
+        y = np.log([r["wall_s"] for r in rows])
+        out["growth_exponent"] = float(np.polyfit(x, y, 1)[0])
+        print(f"  time grows as runs^{out['growth_exponent']:.2f} (1 = linear)")
+    ten = [r for r in rows if r["runs"] == 10]
+    if ten:
+        print(f"  10 runs: {ten[0]['wall_s']:.1f} s (target < 30 s, goal 10 s) -> "
+              + ("met" if ten[0]["wall_s"] < 30 else "MISSED"))
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="what", required=True)
+    c = sub.add_parser("calibration")
+    c.add_argument("--repeats", type=int, default=50)
+    c.add_argument("--coating", default="FOTAS")
+    c.add_argument("--travel-um", type=float, default=20.0)
+    c.add_argument("--workers", type=int, default=1)
+    s = sub.add_parser("speed")
+    s.add_argument("--runs", default="2,5,10")
+    s.add_argument("--steps", type=int, default=2000)
+    s.add_argument("--coating", default="FOTAS")
+    for p in (c, s):
+        p.add_argument("--json", metavar="OUT")
+    a = ap.parse_args(argv)
+    if a.what == "calibration":
+        out = calibration(a.repeats, a.coating, a.travel_um, a.workers)
+    else:
+        out = speed([int(x) for x in a.runs.split(",")], a.steps, a.coating)
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(out, f, indent=1, default=float)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
