@@ -14,7 +14,8 @@ ranges
     load range and the usable (Nb, fp) grid points from simulated runs; progress on
     stderr, report on stdout, JSON and optionally the regime-map plot.
 experiment
-    Placeholder (not implemented yet; exit 2).
+    Optimal experiment plan (:func:`design.experiment.design_experiment`) beside the paper's
+    conditions; ``--verify N`` measures both plans' spread by simulation and identification.
 """
 
 from __future__ import annotations
@@ -163,16 +164,69 @@ def _cmd_ranges(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------------------
-# placeholders (filled in later)
+# experiment
 # --------------------------------------------------------------------------------------
 def _add_experiment(sub) -> None:
-    p = sub.add_parser("experiment", help="experiment design (not implemented yet)")
+    p = sub.add_parser(
+        "experiment",
+        help="optimal experiment plan: which (k, Nb, fp) runs determine the friction parameters",
+        description=(
+            "Fisher information of each candidate run from the identification NLP (90 nm noise), "
+            "a D/A/E-optimal plan of N runs, and the paper's conditions with the same run count "
+            "beside it; --verify simulates and identifies both plans N times."
+        ),
+    )
+    p.add_argument("--coating", default="FOTAS", help="Table II preset: FOTAS or OTS")
+    p.add_argument("--runs", type=int, required=True, help="number of runs in the plan")
+    p.add_argument("--springs", default="2.13,20.3", help="comma-separated spring constants (N/m)")
+    p.add_argument("--criterion", default="D", help="D (default), A or E")
+    p.add_argument("--prior", type=Path, default=None, metavar="FIT.json",
+                   help="a fit's JSON (python -m identify fit --json): design what to run next")
+    p.add_argument("--travel-um", type=float, default=30.0, help="travel of every run (µm, default 30)")
+    p.add_argument("--loads-uN", type=float, nargs="+", default=None, metavar="NB",
+                   help="candidate loads (µN; default 4 log-spaced in each spring's Table I range, <= 60)")
+    p.add_argument("--fp", type=float, nargs="+", default=None, metavar="FP",
+                   help="candidate step frequencies (Hz; default 10 30 100 300 1000)")
+    p.add_argument("--verify", type=int, default=0, metavar="N",
+                   help="simulate + identify the plan and the reference N times each (slow)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the verification noise")
+    p.add_argument("--workers", type=int, default=1, help="processes for the verification fits")
+    p.add_argument("--json", type=Path, default=None, metavar="OUT")
+    p.add_argument("--plot", type=Path, default=None, metavar="FILE")
     p.set_defaults(func=_cmd_experiment)
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
-    print("design experiment: not implemented yet", file=sys.stderr)
-    return 2
+    from .experiment import CRITERIA, default_candidates, design_experiment, prior_from_fit, verify_plans
+
+    _check_outputs(args)
+    if args.criterion not in CRITERIA:
+        raise ValueError(f"--criterion {args.criterion!r}: no such criterion; choose one of {', '.join(CRITERIA)}")
+    if args.runs < 1:
+        raise ValueError(f"--runs {args.runs}: must be at least 1")
+    try:
+        springs = [float(x) for x in args.springs.split(",") if x.strip()]
+    except ValueError:
+        raise ValueError(f"--springs {args.springs!r}: expected comma-separated numbers") from None
+    if not springs or any(not (k > 0) for k in springs):
+        raise ValueError(f"--springs {args.springs!r}: spring constants must be > 0")
+    prior = prior_from_fit(args.prior, args.coating) if args.prior is not None else None
+    say = lambda msg: print(f"[experiment] {msg}", file=sys.stderr, flush=True)  # noqa: E731
+    if args.fp is not None and any(not (f > 0) for f in args.fp):
+        raise ValueError(f"--fp {args.fp}: step frequencies must be > 0")
+    cands = default_candidates(springs, args.travel_um, loads_uN=args.loads_uN,
+                               **({"fps_Hz": args.fp} if args.fp else {}))
+    if not cands:
+        raise ValueError("no candidate run: every --loads-uN value lies outside the springs' Table I ranges")
+    plan = design_experiment(args.runs, args.coating, candidates=cands, criterion=args.criterion,
+                             prior_information=prior, travel_um=args.travel_um, progress=say)
+    if args.verify:
+        if args.json is not None:  # the design is saved before the long verification
+            args.json.write_text(json.dumps(plan.to_json(), indent=2) + "\n", encoding="utf-8")
+        verify_plans(plan, args.verify, seed=args.seed, workers=args.workers, progress=say)
+    print(plan.report())
+    _write_outputs(args, plan)
+    return 0
 
 
 _SUBCOMMANDS: tuple[Callable, ...] = (_add_springs, _add_ranges, _add_experiment)

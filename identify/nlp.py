@@ -309,7 +309,8 @@ class Problem:
             s_pos = self.position(z_aged, x_prev[nx], e0[nx], Pn, ops=ca, z_before=z_before)
             phi = w[self.i_phi : self.i_phi + self.n_phase]
             k_of = np.array([self.phase_of_run[int(ri)] for ri in self.ev_run[nx]], int)
-            res.append(math.sqrt(12) * (s_pos - phi[k_of]))
+            # (a 1x1 MX indexed by a list comes back as a row: force a column)
+            res.append(math.sqrt(12) * (s_pos - ca.reshape(phi[k_of.tolist()], -1, 1)))
             res.append(math.sqrt(12) * (phi - 0.5))
             g = x_um[self.ev_prev + 1] - x_um[self.ev_prev] - Y[0, :].T
         for r in self.creep_runs:

@@ -63,10 +63,9 @@ def test_bad_input_exit_2_one_line(argv, match, capsys):
     assert match in one_error_line(capsys)
 
 
-@pytest.mark.parametrize("command", ["experiment"])
-def test_placeholders(command, capsys):
-    assert main([command]) == 2
-    assert "not implemented yet" in capsys.readouterr().err
+def test_experiment_requires_runs(capsys):
+    assert main(["experiment"]) == 2
+    assert "--runs" in capsys.readouterr().err
 
 
 def test_help_lists_subcommands(capsys):

@@ -1,0 +1,466 @@
+"""Optimal experiment design: which (k, Nb, fp) runs make the friction parameters
+well determined.
+
+The information of a run is taken from the identification's own NLP
+(:class:`identify.nlp.Problem`), so the design optimises exactly what the fit will use:
+the run is simulated at the nominal parameters without noise, its events extracted, the
+NLP built with the camera noise model (``noise_nm``, 90 nm) as the frame standard
+deviation, the per-run nuisances (plateau positions) solved with the friction parameters
+held at their nominal values, and then
+
+    I_run = Schur complement of the Gauss–Newton matrix JᵀJ on the friction parameters,
+            the nuisances eliminated under the shooting constraints.
+
+Nuisances belong to one run, so the information of a plan is the sum of its runs' (plus
+a prior, for sequential design). Criteria, on the relative parameters θ/θ_nominal so that
+A and E do not depend on units: D (max log det I), A (min trace I⁻¹), E (max λ_min I).
+A plan of N runs (replicates allowed) is found by exhaustive enumeration when the number
+of plans is small, else by a greedy build followed by Fedorov exchange until no swap
+improves the criterion.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+__all__ = ["Candidate", "CRITERIA", "ExperimentPlan", "run_information", "run_problem", "design_experiment",
+           "paper_plan", "prior_from_fit", "verify_plans"]
+
+CRITERIA = ("D", "A", "E")
+DEFAULT_FREE = ("mu_max", "mu_min", "tau", "A")
+STICK_SPEED = 1e-5  # the simulator's stick option (README): as written, most of the grid creeps
+PAPER_LOADS_UN = (0.98, 8.0, 18.1)
+PAPER_FPS_HZ = (10.0, 100.0, 500.0, 1000.0)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One run a plan may contain."""
+
+    spring_constant_N_per_m: float
+    normal_load_uN: float
+    step_frequency_Hz: float
+    travel_um: float = 30.0
+
+    def to_json(self) -> dict:
+        return dict(spring_constant_N_per_m=self.spring_constant_N_per_m, normal_load_uN=self.normal_load_uN,
+                    step_frequency_Hz=self.step_frequency_Hz, travel_um=self.travel_um)
+
+    def label(self) -> str:
+        return f"k={self.spring_constant_N_per_m:g} Nb={self.normal_load_uN:g}µN fp={self.step_frequency_Hz:g}Hz"
+
+
+# ----------------------------------------------------------------------------- information
+def _simulate(c: Candidate, coating: str, params: Mapping[str, float], stick_speed: float):
+    from identify import SimulationOptions, simulate
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return simulate(coating, spring_constant_N_per_m=c.spring_constant_N_per_m,
+                        normal_load_uN=c.normal_load_uN, step_frequency_Hz=c.step_frequency_Hz,
+                        travel_um=c.travel_um, params=dict(params), stick_speed_m_per_s=stick_speed,
+                        options=SimulationOptions(record=False))
+
+
+def run_information(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, float] | None = None,
+                    free: Sequence[str] = DEFAULT_FREE, noise_nm: float = 90.0,
+                    stick_speed_m_per_s: float = STICK_SPEED) -> tuple[np.ndarray, dict]:
+    """Fisher information of one run on ``free`` (natural units), and a summary.
+
+    Zero information (with the reason in the summary) when the run shows neither
+    resolvable slips nor steady creep at the nominal parameters.
+    """
+    prob, w, summary = run_problem(c, coating, params=params, free=free, noise_nm=noise_nm,
+                                   stick_speed_m_per_s=stick_speed_m_per_s)
+    if prob is None:
+        return np.zeros((len(free),) * 2), summary
+    I_scaled = _schur_information(prob, w)
+    D = prob.theta.jacobian_diag(w[: prob.n_theta])  # d natural / d scaled
+    return I_scaled / np.outer(D, D), summary
+
+
+def run_problem(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, float] | None = None,
+                free: Sequence[str] = DEFAULT_FREE, noise_nm: float = 90.0,
+                stick_speed_m_per_s: float = STICK_SPEED):
+    """The identification NLP of one noiselessly simulated run, its nuisances solved at
+    the nominal parameters: (Problem, w, summary), or (None, None, summary) when the run
+    carries no information."""
+    from identify.events import extract_events
+    from identify.fit import FitOptions, _run_data
+    from identify.laws import get_law
+    from identify.model import Model
+    from identify.nlp import Problem
+    from identify.params import parameter_set
+
+    p_nom = parameter_set(coating, dict(params or {}))
+    fixed = {"v_stick": stick_speed_m_per_s} if "v_stick" not in free else {}
+    p_nom.update(fixed)
+    sim = _simulate(c, coating, dict(params or {}), stick_speed_m_per_s)
+    info = dict(regime=sim.regime, n_slips=int(len(sim.slips)) if hasattr(sim, "slips") else None)
+    trace = sim.sample(noise_nm=0.0, name=c.label())
+    try:
+        ev = extract_events(trace, noise_m=noise_nm * 1e-9)
+        rd = _run_data(ev)
+    except (ValueError, RuntimeError) as err:
+        return None, None, dict(info, used=False, reason=f"event extraction failed: {err}")
+    rd.sigma = noise_nm * 1e-9  # the design's noise model, not the noiseless trace's
+    if rd.kind == "creep":
+        if sim.regime != "creep":
+            return None, None, dict(info, used=False, reason=f"{sim.regime}: no resolvable slips")
+        n_half = max(len(trace.time_s) // 2, 1)
+        rd.steady_se = math.sqrt(rd.sigma**2 / n_half + (trace.step_size / math.sqrt(12)) ** 2)
+    elif len(rd.trigger_steps) < 2:
+        return None, None, dict(info, used=False, reason="fewer than two slips")
+    model = Model(get_law("exponential"))
+    opts = FitOptions(free=tuple(free), fixed=fixed, staged_start=False)
+    prob = Problem([rd], model, dict(model.defaults(p_nom)), opts).build()
+    w = prob.initial_w({k: p_nom[k] for k in free})
+    if prob.E:
+        prob.size_arcs(w)
+        w = prob.solve(w, fixed={i: w[i] for i in range(prob.n_theta)})["w"]
+    return prob, w, dict(info, used=True, reason=None, kind=rd.kind, n_events=int(prob.E))
+
+
+def _schur_information(prob, w) -> np.ndarray:
+    """Information on the scaled parameters with every other variable eliminated under the
+    linearised constraints. A run alone may not determine every parameter (a singular
+    Schur complement is legitimate), so a tiny ridge ε on the parameters makes the KKT
+    matrix invertible and is subtracted again: (C_ε)⁻¹ − εI is the exact complement."""
+    r, g, Jr, Jg = prob.evaluate(w, jac=True)
+    H = (Jr.T @ Jr).tocsc().toarray()
+    Jg = Jg.toarray()
+    n_th = prob.n_theta
+    fixed = set(range(prob.i_phi, prob.n_w))  # the phases are fixed at ½ (not free_phase)
+    keep = np.array([i for i in range(prob.n_w) if i not in fixed])
+    H, Jg = H[np.ix_(keep, keep)], Jg[:, keep]
+    eps = 1e-9 * max(np.abs(np.diag(H)[:n_th]).max(), 1.0)
+    H[:n_th, :n_th] += eps * np.eye(n_th)
+    m = Jg.shape[0]
+    K = np.block([[H, Jg.T], [Jg, np.zeros((m, m))]]) if m else H
+    rhs = np.zeros((K.shape[0], n_th))
+    rhs[:n_th, :n_th] = np.eye(n_th)
+    sol = np.linalg.lstsq(K, rhs, rcond=1e-14)[0] if not np.all(np.isfinite(K)) else np.linalg.solve(K, rhs)
+    C = sol[:n_th, :n_th]
+    C = 0.5 * (C + C.T)
+    info = np.linalg.inv(C) - eps * np.eye(n_th)
+    return 0.5 * (info + info.T)
+
+
+# ----------------------------------------------------------------------------- criteria
+def _criterion(I_rel: np.ndarray, name: str) -> float:
+    """Larger is better for every criterion (A is negated)."""
+    if name == "D":
+        sign, logdet = np.linalg.slogdet(I_rel)
+        return float(logdet) if sign > 0 else -np.inf
+    if name == "A":
+        try:
+            return -float(np.trace(np.linalg.inv(I_rel)))
+        except np.linalg.LinAlgError:
+            return -np.inf
+    if name == "E":
+        return float(np.linalg.eigvalsh(I_rel)[0])
+    raise ValueError(f"criterion {name!r}: choose one of {', '.join(CRITERIA)}")
+
+
+def _stderr(I_nat: np.ndarray) -> np.ndarray:
+    try:
+        C = np.linalg.inv(I_nat)
+        d = np.diag(C)
+        return np.where(d > 0, np.sqrt(np.abs(d)), np.nan)
+    except np.linalg.LinAlgError:
+        return np.full(len(I_nat), np.nan)
+
+
+# ----------------------------------------------------------------------------- plans
+@dataclass
+class ExperimentPlan:
+    """A plan (runs, replicates allowed), its criterion and predicted standard errors,
+    beside a reference plan of the same size."""
+
+    coating: str
+    criterion: str
+    free: tuple
+    nominal: dict
+    plan: list
+    predicted_stderr: dict
+    criterion_value: float
+    reference_plan: list
+    reference_stderr: dict
+    reference_criterion_value: float
+    candidates: list = field(default_factory=list)  # (Candidate, summary)
+    enumeration: dict = field(default_factory=dict)
+    prior_used: bool = False
+    monte_carlo: dict | None = None
+
+    @staticmethod
+    def _gmean(se: Mapping[str, float], nominal: Mapping[str, float]) -> float:
+        rel = [se[n] / abs(nominal[n]) for n in se]
+        return float(np.exp(np.mean(np.log(rel)))) if all(np.isfinite(rel)) and all(r > 0 for r in rel) else float("nan")
+
+    def report(self) -> str:
+        lines = [f"Experiment plan: {self.coating}, {len(self.plan)} runs, {self.criterion}-optimal"
+                 + (" (with prior information)" if self.prior_used else ""),
+                 f"  search: {self.enumeration.get('method')}, {self.enumeration.get('plans_evaluated')} plans "
+                 f"evaluated over {len(self.candidates)} candidates"]
+        lines.append("  plan:")
+        for c in self.plan:
+            lines.append(f"    {c.label()}, travel {c.travel_um:g} µm")
+        lines.append("  reference (the paper's conditions, same run count):")
+        for c in self.reference_plan:
+            lines.append(f"    {c.label()}, travel {c.travel_um:g} µm")
+        lines.append(f"  {'parameter':10} {'plan stderr':>12} {'reference':>12} {'ratio':>7}")
+        for n in self.free:
+            a, b = self.predicted_stderr[n], self.reference_stderr[n]
+            lines.append(f"  {n:10} {a:12.4g} {b:12.4g} {b / a if a else float('nan'):7.2f}")
+        gp = self._gmean(self.predicted_stderr, self.nominal)
+        gr = self._gmean(self.reference_stderr, self.nominal)
+        lines.append(f"  geometric-mean relative stderr: plan {gp:.4g}, reference {gr:.4g} "
+                     f"(reference / plan = {gr / gp:.2f})")
+        if self.monte_carlo:
+            mc = self.monte_carlo
+            lines.append(f"  Monte Carlo ({mc['repeats']} seeded repeats each), measured spread:")
+            for n in self.free:
+                lines.append(f"    {n:10} plan {mc['plan_stderr'][n]:.4g} (predicted {self.predicted_stderr[n]:.4g}),"
+                             f" reference {mc['reference_stderr'][n]:.4g} (predicted {self.reference_stderr[n]:.4g})")
+        unused = [(c, s) for c, s in self.candidates if not s.get("used")]
+        if unused:
+            lines.append("  candidates without information:")
+            lines += [f"    {c.label()}: {s.get('reason')}" for c, s in unused]
+        return "\n".join(lines)
+
+    def to_json(self) -> dict:
+        return dict(
+            coating=self.coating, criterion=self.criterion, free=list(self.free), nominal=self.nominal,
+            plan=[c.to_json() for c in self.plan], predicted_stderr=self.predicted_stderr,
+            criterion_value=self.criterion_value,
+            reference_plan=dict(plan=[c.to_json() for c in self.reference_plan],
+                                predicted_stderr=self.reference_stderr,
+                                criterion_value=self.reference_criterion_value),
+            enumeration=self.enumeration, prior_used=self.prior_used,
+            candidates=[dict(c.to_json(), **{k: v for k, v in s.items() if k != "information"})
+                        for c, s in self.candidates],
+            **({"monte_carlo": self.monte_carlo} if self.monte_carlo else {}),
+        )
+
+    def plot(self, ax=None):
+        """Predicted relative standard errors of the plan and the reference, per parameter."""
+        from identify.plots import _plt
+
+        plt = _plt()
+        if ax is None:
+            _, ax = plt.subplots(figsize=(5.5, 3.5), constrained_layout=True)
+        x = np.arange(len(self.free))
+        rel = lambda se: [se[n] / abs(self.nominal[n]) for n in self.free]  # noqa: E731
+        ax.bar(x - 0.2, rel(self.predicted_stderr), 0.4, label=f"{self.criterion}-optimal plan")
+        ax.bar(x + 0.2, rel(self.reference_stderr), 0.4, label="paper's conditions")
+        if self.monte_carlo:
+            ax.plot(x - 0.2, rel(self.monte_carlo["plan_stderr"]), "kv", label="measured (Monte Carlo)")
+            ax.plot(x + 0.2, rel(self.monte_carlo["reference_stderr"]), "kv")
+        ax.set_xticks(x, self.free)
+        ax.set(yscale="log", ylabel="relative standard error", title=f"{self.coating}, {len(self.plan)} runs")
+        ax.legend(fontsize=7, frameon=False)
+        return ax
+
+
+def paper_plan(n_runs: int, travel_um: float = 30.0) -> list:
+    """The paper's conditions (k = 2.13 N/m, Nb ∈ {0.98, 8, 18.1} µN, fp ∈ {10, 100, 500,
+    1000} Hz: 12 runs) cut or repeated to ``n_runs``, spread evenly over the 12."""
+    grid = [Candidate(2.13, nb, fp, travel_um) for nb in PAPER_LOADS_UN for fp in PAPER_FPS_HZ]
+    idx = np.floor(np.arange(n_runs) * len(grid) / n_runs).astype(int) if n_runs <= len(grid) \
+        else np.arange(n_runs) % len(grid)
+    return [grid[i] for i in idx]
+
+
+def default_candidates(springs: Sequence[float], travel_um: float = 30.0,
+                       loads_uN: Sequence[float] | None = None,
+                       fps_Hz: Sequence[float] = (10.0, 30.0, 100.0, 300.0, 1000.0)) -> list:
+    """(k, Nb, fp) grid inside Table I for each spring, camera at ≤ 5000 Hz."""
+    from .constraints import allowed_load_range
+
+    out = []
+    for k in springs:
+        lo, hi = (float(np.asarray(v).ravel()[0]) * 1e6 for v in allowed_load_range(k))
+        loads = loads_uN if loads_uN is not None else np.geomspace(lo, min(hi, 60.0), 4)
+        for nb in loads:
+            if lo * (1 - 1e-9) <= nb <= hi * (1 + 1e-9):
+                out += [Candidate(float(k), float(np.round(nb, 3)), float(fp), travel_um) for fp in fps_Hz if fp <= 5000]
+    return out
+
+
+def design_experiment(n_runs: int, coating: str = "FOTAS", *, springs: Sequence[float] = (2.13, 20.3),
+                      candidates: Sequence[Candidate] | None = None, criterion: str = "D",
+                      free: Sequence[str] = DEFAULT_FREE, prior_information: np.ndarray | None = None,
+                      noise_nm: float = 90.0, stick_speed_m_per_s: float = STICK_SPEED, travel_um: float = 30.0,
+                      max_enumerate: int = 20000, reference: Sequence[Candidate] | None = None,
+                      progress: Callable[[str], None] | None = None) -> ExperimentPlan:
+    """Choose ``n_runs`` runs from the candidate grid that optimise ``criterion``."""
+    from identify.params import parameter_set
+
+    if criterion not in CRITERIA:
+        raise ValueError(f"criterion {criterion!r}: choose one of {', '.join(CRITERIA)}")
+    if int(n_runs) < 1:
+        raise ValueError(f"runs = {n_runs!r}: must be a positive integer")
+    free = tuple(free)
+    nominal = {n: float(parameter_set(coating)[n]) for n in free}
+    scale = np.array([abs(nominal[n]) for n in free])
+    say = progress or (lambda msg: None)
+    cands = list(candidates) if candidates is not None else default_candidates(springs, travel_um)
+    ref = list(reference) if reference is not None else paper_plan(n_runs, travel_um)
+    infos: dict = {}
+
+    def info_of(c: Candidate):
+        if c not in infos:
+            try:
+                I, s = run_information(c, coating, free=free, noise_nm=noise_nm,
+                                       stick_speed_m_per_s=stick_speed_m_per_s)
+            except Exception as err:  # one candidate that fails to simulate is dropped, not fatal
+                I, s = np.zeros((len(free),) * 2), dict(used=False, reason=f"{type(err).__name__}: {err}")
+            infos[c] = (I, s)
+        return infos[c][0]
+
+    for i, c in enumerate(cands, 1):
+        say(f"information of candidate {i}/{len(cands)}: {c.label()}")
+        info_of(c)
+    for c in ref:
+        info_of(c)
+    I0 = np.zeros((len(free),) * 2) if prior_information is None else np.asarray(prior_information, float)
+    rel = lambda I: I * np.outer(scale, scale)  # noqa: E731 - information on θ/θ_nominal
+    usable = [c for c in cands if infos[c][1].get("used")]
+    if not usable:
+        raise ValueError("no candidate run carries information (all creep-free of slips or failed)")
+    mats = [info_of(c) for c in usable]
+    value = lambda idx: _criterion(rel(I0 + sum(mats[i] for i in idx)), criterion)  # noqa: E731
+    n_plans = math.comb(len(usable) + n_runs - 1, n_runs)
+    evaluated = 0
+    if n_plans <= max_enumerate:
+        best, best_v = None, -np.inf
+        for idx in itertools.combinations_with_replacement(range(len(usable)), n_runs):
+            v = value(idx)
+            evaluated += 1
+            if v > best_v:
+                best, best_v = list(idx), v
+        method = "exhaustive enumeration"
+    else:
+        # greedy build: the run that adds most, with a tiny ridge so the first picks compare
+        ridge = 1e-9 * np.eye(len(free))
+        best = []
+        for _ in range(n_runs):
+            gains = [_criterion(rel(I0 + ridge + sum(mats[i] for i in best) + mats[j]), criterion)
+                     for j in range(len(usable))]
+            evaluated += len(gains)
+            best.append(int(np.argmax(gains)))
+        best_v = value(best)
+        method = "greedy + Fedorov exchange"
+        improved = True
+        while improved:
+            improved = False
+            for pos in range(n_runs):
+                for j in range(len(usable)):
+                    trial = best.copy()
+                    trial[pos] = j
+                    v = value(trial)
+                    evaluated += 1
+                    if v > best_v + 1e-12:
+                        best, best_v, improved = trial, v, True
+    plan = [usable[i] for i in sorted(best)]
+    I_plan = I0 + sum(mats[i] for i in best)
+    I_ref = I0 + sum(info_of(c) for c in ref)
+    se = dict(zip(free, _stderr(I_plan).tolist()))
+    se_ref = dict(zip(free, _stderr(I_ref).tolist()))
+    return ExperimentPlan(
+        coating=coating, criterion=criterion, free=free, nominal=nominal, plan=plan, predicted_stderr=se,
+        criterion_value=float(best_v), reference_plan=ref, reference_stderr=se_ref,
+        reference_criterion_value=float(_criterion(rel(I_ref), criterion)),
+        candidates=[(c, dict(infos[c][1])) for c in cands],
+        enumeration=dict(method=method, plans_evaluated=evaluated, plans_possible=n_plans,
+                         best_value_enumerated=float(best_v) if method.startswith("exhaustive") else None),
+        prior_used=prior_information is not None,
+    )
+
+
+# ----------------------------------------------------------------------------- prior
+def prior_from_fit(path: str | Path, coating: str, free: Sequence[str] = DEFAULT_FREE) -> np.ndarray:
+    """Information already in hand, from a fit's JSON (``python -m identify fit --json``):
+    the inverse of its covariance (standard errors and correlation) on ``free``."""
+    p = Path(path)
+    try:
+        js = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise ValueError(f"--prior {p}: not a readable fit JSON ({err})") from None
+    if str(js.get("coating", "")).upper() != coating.upper():
+        raise ValueError(f"--prior {p}: a fit of coating {js.get('coating')!r}, not {coating}; "
+                         "information from another coating does not carry over")
+    pars = js.get("parameters", {})
+    missing = [n for n in free if n not in pars or not pars[n].get("free") or pars[n].get("stderr") is None]
+    if missing:
+        raise ValueError(f"--prior {p}: no free estimate with a standard error for {', '.join(missing)}")
+    se = np.array([pars[n]["stderr"] for n in free], float)
+    corr = js.get("correlation", {})
+    R = np.eye(len(free))
+    for i, a in enumerate(free):
+        for j, b in enumerate(free):
+            if i != j:
+                v = (corr.get(a, {}) or {}).get(b) if isinstance(corr.get(a), dict) else None
+                R[i, j] = 0.0 if v is None else float(v)
+    return np.linalg.inv(np.outer(se, se) * R)
+
+
+# ----------------------------------------------------------------------------- verification
+def _fit_plan(plan, coating, free, noise_nm, stick, seed):
+    from identify import FitOptions, fit
+
+    traces = []
+    for i, c in enumerate(plan):
+        sim = _simulate(c, coating, {}, stick)
+        traces.append(sim.sample(noise_nm=noise_nm, seed=10_000 * seed + i, name=f"run{i}"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = fit(traces, coating=coating, options=FitOptions(free=tuple(free), fixed={"v_stick": stick}))
+    return {n: res[n].value for n in free}
+
+
+def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm: float = 90.0,
+                 stick_speed_m_per_s: float = STICK_SPEED, workers: int = 1,
+                 progress: Callable[[str], None] | None = None) -> dict:
+    """Simulate and identify the plan and the reference ``repeats`` times each (seeded
+    noise, repeat r uses seed + r for both plans); the measured spread (standard
+    deviation) of the estimates per parameter. Fits run in ``workers`` processes."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    say = progress or (lambda msg: None)
+    out = {}
+    jobs = [(key, r) for key in ("plan_stderr", "reference_stderr") for r in range(repeats)]
+    runs_of = {"plan_stderr": plan.plan, "reference_stderr": plan.reference_plan}
+    est: dict = {"plan_stderr": [], "reference_stderr": []}
+    failed: dict = {"plan_stderr": 0, "reference_stderr": 0}
+    with ProcessPoolExecutor(max_workers=max(int(workers), 1)) as ex:
+        futs = {ex.submit(_fit_plan, runs_of[key], plan.coating, plan.free, noise_nm, stick_speed_m_per_s,
+                          seed + r): (key, r) for key, r in jobs}
+        from concurrent.futures import as_completed
+
+        for i, f in enumerate(as_completed(futs), 1):
+            key, r = futs[f]
+            try:
+                est[key].append(f.result())
+            except Exception as err:  # a failed repeat is counted, not fatal
+                failed[key] += 1
+                say(f"  {key.split('_')[0]} repeat {r + 1} failed: {err}")
+            say(f"verification: {i}/{len(jobs)} fits done")
+    for key in est:
+        out[key] = {n: float(np.std([e[n] for e in est[key]], ddof=1)) if len(est[key]) > 1 else float("nan")
+                    for n in plan.free}
+        out[key.replace("stderr", "mean")] = {n: float(np.mean([e[n] for e in est[key]])) if est[key] else float("nan")
+                                             for n in plan.free}
+        out[key.replace("stderr", "failed")] = failed[key]
+    out["repeats"] = repeats
+    out["seed"] = seed
+    plan.monte_carlo = out
+    return out

@@ -1,0 +1,157 @@
+"""Optimal experiment design: the information matrix, the plan search, priors, the CLI."""
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+
+from design.cli import main
+from design.experiment import (Candidate, _schur_information, design_experiment, prior_from_fit,
+                               run_information, run_problem)
+
+SMALL = [Candidate(2.13, 5, 100, 12.0), Candidate(20.3, 30, 30, 12.0), Candidate(2.13, 10, 1000, 12.0)]
+
+
+@pytest.fixture(scope="module")
+def infos():
+    return {c: run_information(c) for c in SMALL}
+
+
+def test_information_matches_finite_differences():
+    """Schur complement of JᵀJ == (dr/dθ)ᵀ(dr/dθ) of the residuals with the nuisances
+    re-solved at each θ (central differences)."""
+    prob, w, summary = run_problem(SMALL[0])
+    assert summary["used"] and summary["kind"] == "events"
+    info = _schur_information(prob, w)
+    n = prob.n_theta
+
+    def profiled(th):
+        w1 = w.copy()
+        w1[:n] = th
+        w1 = prob.solve(w1, fixed={i: th[i] for i in range(n)})["w"]
+        return prob.residuals(w1)
+
+    cols = []
+    for i in range(n):
+        h = 1e-3
+        up, dn = w[:n].copy(), w[:n].copy()
+        up[i] += h
+        dn[i] -= h
+        cols.append((profiled(up) - profiled(dn)) / (2 * h))
+    J = np.array(cols).T
+    assert np.abs(info - J.T @ J).max() <= 2e-3 * np.abs(info).max()
+
+
+def test_run_information_is_symmetric_psd(infos):
+    for c, (I, s) in infos.items():
+        assert s["used"], (c, s)
+        assert np.allclose(I, I.T)
+        assert np.linalg.eigvalsh(I).min() >= -1e-6 * np.abs(I).max()
+    assert infos[SMALL[2]][1]["kind"] == "creep"  # steady sliding still informs μ(v)
+
+
+def test_no_information_run_says_why():
+    I, s = run_information(Candidate(2.13, 0.98, 100, 12.0))
+    assert not s["used"] and "stepping" in s["reason"] and not I.any()
+
+
+def _logdet(I):
+    scale = np.array([0.796, 0.484, 0.0674, 0.015])  # FOTAS nominal: relative parameters
+    sign, v = np.linalg.slogdet(I * np.outer(scale, scale))
+    return v if sign > 0 else -np.inf
+
+
+def test_d_optimal_beats_every_enumerated_plan(infos):
+    plan = design_experiment(3, candidates=SMALL, reference=SMALL[:1] * 3, criterion="D")
+    assert plan.enumeration["method"] == "exhaustive enumeration"
+    best = _logdet(sum(infos[c][0] for c in plan.plan))
+    for combo in itertools.combinations_with_replacement(SMALL, 3):
+        assert best >= _logdet(sum(infos[c][0] for c in combo)) - 1e-9
+    assert plan.criterion_value == pytest.approx(best, abs=1e-9)
+
+
+def test_exchange_finds_the_enumerated_optimum():
+    exhaustive = design_experiment(3, candidates=SMALL, reference=SMALL[:1], criterion="D")
+    exchange = design_experiment(3, candidates=SMALL, reference=SMALL[:1], criterion="D", max_enumerate=0)
+    assert exchange.enumeration["method"].startswith("greedy")
+    assert exchange.criterion_value == pytest.approx(exhaustive.criterion_value, abs=1e-9)
+
+
+@pytest.mark.parametrize("criterion", ["A", "E"])
+def test_other_criteria(criterion):
+    plan = design_experiment(2, candidates=SMALL, reference=SMALL[:1] * 2, criterion=criterion)
+    assert len(plan.plan) == 2 and np.isfinite(plan.criterion_value)
+    assert all(np.isfinite(v) for v in plan.predicted_stderr.values())
+
+
+def test_unknown_criterion():
+    with pytest.raises(ValueError, match="criterion 'Q'"):
+        design_experiment(2, candidates=SMALL, criterion="Q")
+
+
+def _fit_json(tmp_path, coating="FOTAS"):
+    names = ("mu_max", "mu_min", "tau", "A")
+    se = dict(mu_max=0.002, mu_min=0.01, tau=0.003, A=0.001)
+    corr = {a: {b: (1.0 if a == b else (0.5 if {a, b} == {"mu_min", "A"} else 0.0)) for b in names} for a in names}
+    js = dict(coating=coating, correlation=corr,
+              parameters={n: dict(value=1.0, stderr=se[n], free=True) for n in names})
+    p = tmp_path / f"fit_{coating}.json"
+    p.write_text(json.dumps(js))
+    return p, se
+
+
+def test_prior_from_fit(tmp_path):
+    p, se = _fit_json(tmp_path)
+    I = prior_from_fit(p, "FOTAS")
+    C = np.linalg.inv(I)
+    assert np.sqrt(np.diag(C)) == pytest.approx([se[n] for n in ("mu_max", "mu_min", "tau", "A")])
+    assert C[1, 3] / (se["mu_min"] * se["A"]) == pytest.approx(0.5)
+
+
+def test_prior_lowers_predicted_errors(tmp_path):
+    p, _ = _fit_json(tmp_path)
+    prior = prior_from_fit(p, "FOTAS")
+    without = design_experiment(2, candidates=SMALL, reference=SMALL[:1])
+    with_prior = design_experiment(2, candidates=SMALL, reference=SMALL[:1], prior_information=prior)
+    assert with_prior.prior_used
+    for n in ("mu_max", "mu_min", "tau", "A"):
+        assert with_prior.predicted_stderr[n] <= without.predicted_stderr[n] * (1 + 1e-9)
+
+
+def test_prior_from_another_coating(tmp_path):
+    p, _ = _fit_json(tmp_path, coating="OTS")
+    with pytest.raises(ValueError, match="coating 'OTS', not FOTAS"):
+        prior_from_fit(p, "FOTAS")
+
+
+def test_cli_bad_input(tmp_path, capsys):
+    assert main(["experiment", "--runs", "4", "--criterion", "Q", "--json", str(tmp_path / "o.json")]) == 2
+    assert "no such criterion" in capsys.readouterr().err
+    p, _ = _fit_json(tmp_path, coating="OTS")
+    assert main(["experiment", "--runs", "4", "--prior", str(p), "--json", str(tmp_path / "o.json")]) == 2
+    err = capsys.readouterr().err
+    assert "another coating" in err and "Traceback" not in err
+
+
+def test_cli_writes_plan(tmp_path, capsys):
+    out = tmp_path / "plan.json"
+    code = main(["experiment", "--runs", "2", "--springs", "2.13", "--loads-uN", "5", "10", "--fp", "30", "100",
+                 "--travel-um", "12", "--json", str(out), "--plot", str(tmp_path / "plan.png")])
+    assert code == 0
+    js = json.loads(out.read_text())
+    assert {"plan", "criterion", "predicted_stderr", "reference_plan"} <= set(js)
+    assert len(js["plan"]) == 2
+    assert set(js["plan"][0]) == {"spring_constant_N_per_m", "normal_load_uN", "step_frequency_Hz", "travel_um"}
+    assert {"plan", "predicted_stderr"} <= set(js["reference_plan"])
+    assert (tmp_path / "plan.png").stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_verification_measures_spread():
+    plan = design_experiment(2, candidates=SMALL[:2], reference=SMALL[:2][::-1])
+    mc = __import__("design.experiment", fromlist=["verify_plans"]).verify_plans(plan, 3, seed=1, workers=2)
+    assert mc["repeats"] == 3 and mc["plan_failed"] == 0
+    for n in plan.free:
+        assert np.isfinite(mc["plan_stderr"][n]) and mc["plan_stderr"][n] > 0
+    assert "Monte Carlo" in plan.report()
