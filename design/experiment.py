@@ -113,8 +113,12 @@ def run_problem(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, fl
         return None, None, dict(info, used=False, reason=f"event extraction failed: {err}")
     rd.sigma = noise_nm * 1e-9  # the design's noise model, not the noiseless trace's
     if rd.kind == "creep":
+        if sim.regime == "stick-slip" and (info["n_slips"] or 0) < 2:
+            return None, None, dict(info, used=False,
+                                    reason=f"only {info['n_slips']} slip(s) in {c.travel_um:g} µm of travel")
         if sim.regime != "creep":
-            return None, None, dict(info, used=False, reason=f"{sim.regime}: no resolvable slips")
+            return None, None, dict(info, used=False, reason=f"{sim.regime}: slips too short to resolve "
+                                                               "from steps at this noise")
         n_half = max(len(trace.time_s) // 2, 1)
         rd.steady_se = math.sqrt(rd.sigma**2 / n_half + (trace.step_size / math.sqrt(12)) ** 2)
     elif len(rd.trigger_steps) < 2:

@@ -335,6 +335,24 @@ def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0,
             out[val] = float(rr @ rr + prob.chi2_constant() - chi2_min)
             if progress:
                 progress(f"profile {name}: {len(out)}/{len(grid)}")
+        # not yet past the threshold at the grid's edge: walk on, doubling the distance,
+        # before calling the profile flat (a too-narrow grid is not a flat likelihood)
+        val = side[-1] if len(side) else th0
+        for _ in range(4):
+            if out.get(val, 0.0) >= thr:
+                break
+            nxt = th0 + 2 * (val - th0) if val != th0 else th0 + direction * half
+            nxt = min(max(nxt, tm.lo[i]), tm.hi[i])
+            if nxt == val:
+                break
+            val = nxt
+            w[i] = val
+            sol = prob.solve(w, fixed={i: val})
+            w = sol["w"]
+            rr = prob.residuals(w)
+            out[val] = float(rr @ rr + prob.chi2_constant() - chi2_min)
+            if progress:
+                progress(f"profile {name}: extending to {val:.4g} (scaled)")
     vals = np.array(sorted(out))
     dchi = np.array([out[v] for v in vals])
     nat = np.array(tm.scale[i] * (np.exp(vals) if tm.log[i] else vals))

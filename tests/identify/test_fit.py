@@ -216,3 +216,36 @@ def test_recovery_intervals_cover_truth():
         lo, hi = res[name].ci95
         assert lo <= truth[name] <= hi, name
     assert res["mu_min"].value == pytest.approx(truth["mu_min"], rel=0.02)
+
+
+# ----------------------------------------------------------------------------- profiles, multistart
+@pytest.mark.parametrize("name", ["tau", "A"])
+def test_profile_likelihood(small_fit, name):
+    pr = small_fit.profile(name, n_points=5, span=3.0)
+    est = small_fit[name].value
+    assert not pr.flat
+    assert pr.delta_chi2.min() == pytest.approx(0.0, abs=1e-6)
+    # Δχ² grows away from the optimum on both sides
+    i0 = int(np.argmin(np.abs(pr.values - est)))
+    assert pr.delta_chi2[0] > 0 and pr.delta_chi2[-1] > 0 and i0 not in (0, len(pr.values) - 1)
+    if pr.ci95 is not None:
+        assert pr.ci95[0] < est < pr.ci95[1]
+    assert name in small_fit.to_json()["profiles"]
+
+
+def test_parameter_at_bound_is_flagged(small_traces):
+    """A bound that excludes the truth (τ = 67 ms, bounded to 0.2-0.5 s): the estimate
+    sits on the bound and the report says so instead of giving a confident number."""
+    res = fit(small_traces, options=FitOptions(free=("mu_max", "tau"), bounds={"tau": (0.2, 0.5)},
+                                               fixed={"v_stick": V_STICK}, staged_start=False))
+    assert res["tau"].value == pytest.approx(0.2, rel=1e-3)
+    assert "bound" in (res["tau"].flag or "")
+    assert "bound" in res.report()
+
+
+@pytest.mark.slow
+def test_multistart_summary(small_traces):
+    res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}, multistart=2, seed=3))
+    ms = res.multistart
+    assert ms["starts"] == 3 and 1 <= ms["best_found"] <= 3
+    assert "found" in res.report()
