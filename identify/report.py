@@ -324,17 +324,23 @@ def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0,
     scale = result.redchi if prob.opts.scale_covariance else 1.0
     thr = CHI2_95 * max(scale, 1.0)
     out = {th0: 0.0}
+
+    def point(w, val, note):
+        """Δχ² with the parameter held at ``val``, warm-started from ``w``."""
+        w = w.copy()
+        w[i] = val
+        w = prob.solve(w, fixed={i: val})["w"]
+        rr = prob.residuals(w)
+        out[val] = float(rr @ rr + prob.chi2_constant() - chi2_min)
+        if progress:
+            progress(f"profile {name}: {note}")
+        return w
+
     for direction in (+1, -1):
         side = grid[grid > th0] if direction > 0 else grid[grid < th0][::-1]
         w = w_best.copy()
         for val in side:
-            w[i] = val
-            sol = prob.solve(w, fixed={i: val})
-            w = sol["w"]
-            rr = prob.residuals(w)
-            out[val] = float(rr @ rr + prob.chi2_constant() - chi2_min)
-            if progress:
-                progress(f"profile {name}: {len(out)}/{len(grid)}")
+            w = point(w, val, f"{len(out) + 1}/{len(grid)}")
         # not yet past the threshold at the grid's edge: walk on, doubling the distance,
         # before calling the profile flat (a too-narrow grid is not a flat likelihood)
         val = side[-1] if len(side) else th0
@@ -346,13 +352,7 @@ def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0,
             if nxt == val:
                 break
             val = nxt
-            w[i] = val
-            sol = prob.solve(w, fixed={i: val})
-            w = sol["w"]
-            rr = prob.residuals(w)
-            out[val] = float(rr @ rr + prob.chi2_constant() - chi2_min)
-            if progress:
-                progress(f"profile {name}: extending to {val:.4g} (scaled)")
+            w = point(w, val, f"extending to {val:.4g} (scaled)")
     vals = np.array(sorted(out))
     dchi = np.array([out[v] for v in vals])
     nat = np.array(tm.scale[i] * (np.exp(vals) if tm.log[i] else vals))
