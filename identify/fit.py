@@ -414,9 +414,10 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
                 continue
             new_runs.append(_run_data(r.events, triggers=changes.get(i, r.trigger_steps), moving_s=moving.get(i)))
         say(f"mode sequence: {n_moved} slip trigger(s) moved; re-solving")
-        M_prev = prob.ev_M.copy()
+        M_prev, counter = prob.ev_M.copy(), prob.counter
         prob = Problem(new_runs, model, values, opts)
         prob.ev_M = M_prev
+        prob.counter = counter  # the timing report covers every solve, not just the last
         prob.build()
         w_next = best["w"].copy()
         prob.size_arcs(w_next)
