@@ -70,4 +70,4 @@ def test_readme_commands_run(small_data, tmp_path, monkeypatch):
         assert main(args) == 0, cmd
     assert (tmp_path / "fit.json").exists() and (tmp_path / "analysis.json").exists()
     assert (tmp_path / "springs.json").exists() and (tmp_path / "regimes.png").exists()
-    assert (tmp_path / "plan.json").exists()
+    assert (tmp_path / "plan.json").exists() and (tmp_path / "ranges.json").exists()
