@@ -32,8 +32,11 @@ V_STICK = 1e-5
 FREE = ("mu_max", "mu_min", "tau", "A")
 # k (N/m), Nb (µN), fp (Hz): rest times from ~60 ms (near τ) to ~0.7 s
 CAL_CONDITIONS = [(2.13, 5, 100), (20.3, 30, 30), (20.3, 30, 100), (2.13, 10, 100)]
-SPEED_CONDITIONS = [(2.13, 5, 100), (2.13, 5, 30), (2.13, 10, 100), (2.13, 20, 300), (20.3, 60, 100),
-                    (20.3, 30, 100), (20.3, 30, 30), (2.13, 30, 10), (20.3, 30, 60), (2.13, 10, 30)]
+# every prefix mixes both springs and short and long rests: a speed test of a design
+# that cannot determine the parameters (two runs of one spring and load) measures a
+# solver crawling along a flat valley, not the speed of a fit
+SPEED_CONDITIONS = [(2.13, 5, 100), (20.3, 30, 30), (2.13, 20, 300), (20.3, 30, 100), (2.13, 5, 30),
+                    (20.3, 60, 100), (2.13, 10, 100), (2.13, 30, 10), (20.3, 30, 60), (2.13, 10, 30)]
 
 
 def _simulate(conditions, coating, travel_um):
