@@ -1,0 +1,61 @@
+"""The identify CLI: simulate writes the trace and the summary; bad input exits 2 with one
+line naming the parameter and the rule, never a traceback."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from identify.cli import main
+
+BASE = ["simulate", "--coating", "FOTAS", "--spring-constant", "2.13", "--normal-load-uN", "5",
+        "--fp", "100", "--travel-um", "5"]
+
+
+def test_help_lists_subcommands():
+    out = subprocess.run([sys.executable, "-m", "identify", "--help"], capture_output=True, text=True).stdout
+    for cmd in ("demo", "simulate", "regimes", "analyze", "fit", "bench"):
+        assert cmd in out
+
+
+def test_simulate_writes_trace_and_summary(tmp_path, capsys):
+    out = tmp_path / "runs" / "r1"
+    code = main(BASE + ["--noise-nm", "90", "--seed", "1", "--stick-speed", "1e-5", "--out", str(out),
+                        "--json", str(tmp_path / "summary.json"), "--plot"])
+    assert code == 0
+    assert out.with_suffix(".csv").exists() and out.with_suffix(".json").exists()
+    assert (tmp_path / "runs" / "r1_fig13.png").exists()
+    s = json.loads((tmp_path / "summary.json").read_text())
+    for key in ("n_slips", "regime", "slip_lengths_um", "peak_elongations_um", "peak_slip_speed_m_per_s",
+                "mean_rest_time_s", "wall_time_s"):
+        assert key in s
+    assert s["regime"] == "stick-slip" and s["n_slips"] >= 1
+
+
+@pytest.mark.parametrize("change, words", [
+    (["--spring-constant", "-1"], ["spring", "> 0"]),
+    (["--fp", "nan"], ["step_frequency", "finite"]),
+    (["--law", "power"], ["power"]),
+    (["--param", "mu_min=0.9"], ["mu_min", "mu_max"]),
+    (["--param", "bogus=1"], ["bogus"]),
+])
+def test_bad_input_exits_2_with_one_line(tmp_path, capsys, change, words):
+    argv = list(BASE)
+    if change[0] in argv:
+        i = argv.index(change[0])
+        argv[i + 1] = change[1]
+    else:
+        argv += change
+    code = main(argv + ["--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert "Traceback" not in err and err.startswith("error:"), err
+    for w in words:
+        assert w.lower() in err.lower(), (w, err)
+
+
+def test_travel_beyond_range_warns(tmp_path, capsys):
+    argv = [a if a != "5" or i != BASE.index("--travel-um") + 1 else "120" for i, a in enumerate(BASE)]
+    code = main(argv + ["--out", str(tmp_path / "long")])
+    assert code == 0 and "warning" in capsys.readouterr().err.lower()
