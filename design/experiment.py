@@ -104,7 +104,7 @@ def run_problem(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, fl
     fixed = {"v_stick": stick_speed_m_per_s} if "v_stick" not in free else {}
     p_nom.update(fixed)
     sim = _simulate(c, coating, dict(params or {}), stick_speed_m_per_s)
-    info = dict(regime=sim.regime, n_slips=int(len(sim.slips)) if hasattr(sim, "slips") else None)
+    info = dict(regime=sim.regime, n_slips=int(len(sim.slips)))
     trace = sim.sample(noise_nm=0.0, name=c.label())
     try:
         ev = extract_events(trace, noise_m=noise_nm * 1e-9)
@@ -113,7 +113,7 @@ def run_problem(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, fl
         return None, None, dict(info, used=False, reason=f"event extraction failed: {err}")
     rd.sigma = noise_nm * 1e-9  # the design's noise model, not the noiseless trace's
     if rd.kind == "creep":
-        if sim.regime == "stick-slip" and (info["n_slips"] or 0) < 2:
+        if sim.regime == "stick-slip" and info["n_slips"] < 2:
             return None, None, dict(info, used=False,
                                     reason=f"only {info['n_slips']} slip(s) in {c.travel_um:g} µm of travel")
         if sim.regime != "creep":
@@ -151,7 +151,9 @@ def _schur_information(prob, w) -> np.ndarray:
     K = np.block([[H, Jg.T], [Jg, np.zeros((m, m))]]) if m else H
     rhs = np.zeros((K.shape[0], n_th))
     rhs[:n_th, :n_th] = np.eye(n_th)
-    sol = np.linalg.lstsq(K, rhs, rcond=1e-14)[0] if not np.all(np.isfinite(K)) else np.linalg.solve(K, rhs)
+    if not np.all(np.isfinite(K)):
+        raise ValueError("the run's NLP Jacobian is not finite at the nominal parameters")
+    sol = np.linalg.solve(K, rhs)
     C = sol[:n_th, :n_th]
     C = 0.5 * (C + C.T)
     info = np.linalg.inv(C) - eps * np.eye(n_th)
@@ -437,7 +439,7 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
     """Simulate and identify the plan and the reference ``repeats`` times each (seeded
     noise, repeat r uses seed + r for both plans); the measured spread (standard
     deviation) of the estimates per parameter. Fits run in ``workers`` processes."""
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
     say = progress or (lambda msg: None)
     out = {}
@@ -448,8 +450,6 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
     with ProcessPoolExecutor(max_workers=max(int(workers), 1)) as ex:
         futs = {ex.submit(_fit_plan, runs_of[key], plan.coating, plan.free, noise_nm, stick_speed_m_per_s,
                           seed + r): (key, r) for key, r in jobs}
-        from concurrent.futures import as_completed
-
         for i, f in enumerate(as_completed(futs), 1):
             key, r = futs[f]
             try:

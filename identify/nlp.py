@@ -421,7 +421,7 @@ class Problem:
         lbx = np.full(self.n_w, -np.inf)
         ubx = np.full(self.n_w, np.inf)
         lbx[: self.n_theta], ubx[: self.n_theta] = self.theta.lo, self.theta.hi
-        if not getattr(self.opts, "free_phase", False):
+        if not self.opts.free_phase:
             # slips recur at the middle of the step interval on average (uniform phase)
             lbx[self.i_phi : self.n_w] = ubx[self.i_phi : self.n_w] = 0.5
         for i, v in (fixed or {}).items():
@@ -649,7 +649,7 @@ class Problem:
     def n_effective(self) -> int:
         """Free dimensions: parameters, offsets, and per events run its first plateau
         and its trigger phase (the other plateaus follow from the constraints)."""
-        per_run = 2 if getattr(self.opts, "free_phase", False) else 1
+        per_run = 2 if self.opts.free_phase else 1
         return self.n_theta + self.n_off + per_run * sum(1 for r in self.runs if r.kind == "events")
 
     def residual_groups(self) -> dict:
@@ -684,7 +684,7 @@ class Problem:
         r, g, Jr, Jg = self.evaluate(w, jac=True)
         H = (Jr.T @ Jr).tocsc()
         fixed_idx = set(fixed_idx)
-        if not getattr(self.opts, "free_phase", False):
+        if not self.opts.free_phase:
             fixed_idx |= set(range(self.i_phi, self.n_w))
         keep = np.setdiff1d(np.arange(self.n_w), sorted(fixed_idx))
         Hk, Jgk = H[keep][:, keep], Jg[:, keep]
