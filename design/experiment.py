@@ -134,30 +134,11 @@ def run_problem(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, fl
 
 
 def _schur_information(prob, w) -> np.ndarray:
-    """Information on the scaled parameters with every other variable eliminated under the
-    linearised constraints. A run alone may not determine every parameter (a singular
-    Schur complement is legitimate), so a tiny ridge ε on the parameters makes the KKT
-    matrix invertible and is subtracted again: (C_ε)⁻¹ − εI is the exact complement."""
-    r, g, Jr, Jg = prob.evaluate(w, jac=True)
-    H = (Jr.T @ Jr).tocsc().toarray()
-    Jg = Jg.toarray()
-    n_th = prob.n_theta
-    fixed = set(range(prob.i_phi, prob.n_w))  # the phases are fixed at ½ (not free_phase)
-    keep = np.array([i for i in range(prob.n_w) if i not in fixed])
-    H, Jg = H[np.ix_(keep, keep)], Jg[:, keep]
-    eps = 1e-9 * max(np.abs(np.diag(H)[:n_th]).max(), 1.0)
-    H[:n_th, :n_th] += eps * np.eye(n_th)
-    m = Jg.shape[0]
-    K = np.block([[H, Jg.T], [Jg, np.zeros((m, m))]]) if m else H
-    rhs = np.zeros((K.shape[0], n_th))
-    rhs[:n_th, :n_th] = np.eye(n_th)
-    if not np.all(np.isfinite(K)):
-        raise ValueError("the run's NLP Jacobian is not finite at the nominal parameters")
-    sol = np.linalg.solve(K, rhs)
-    C = sol[:n_th, :n_th]
-    C = 0.5 * (C + C.T)
-    info = np.linalg.inv(C) - eps * np.eye(n_th)
-    return 0.5 * (info + info.T)
+    """Information on the scaled parameters, the nuisances eliminated (the NLP's own)."""
+    try:
+        return prob.information(w)
+    except ValueError as err:
+        raise ValueError(f"the run's {err} (nominal parameters)") from None
 
 
 # ----------------------------------------------------------------------------- criteria

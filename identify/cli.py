@@ -312,6 +312,57 @@ def _cmd_demo(args) -> int:
     return code
 
 
+# ----------------------------------------------------------------------------- diagnose
+def _add_diagnose(sub):
+    p = sub.add_parser("diagnose", help="where model and data part, which unmodelled effect, how far it closes",
+                       description="Fit the baseline, locate its misfit feature by feature, refit every "
+                       "candidate effect (parallel), score it (LR, AIC, BIC, held-out gap) and give a verdict.")
+    p.add_argument("data", nargs="+", metavar="DATA", help="trace files (.csv) or folders of runs")
+    _add_fit_arguments(p, json_required=True)
+    p.add_argument("--effects", default="all", metavar="all|ID,ID",
+                   help="candidate effects, default all: " + ", ".join(_effect_ids()))
+    p.add_argument("--folds", default="loo", metavar="loo|K", help="held-out runs: leave-one-run-out or K folds")
+    p.add_argument("--alpha", type=float, default=0.01, help="family-wise level of the tests (default 0.01)")
+    p.add_argument("--max-effects", type=int, default=3, help="forward selection stops after this many")
+    p.add_argument("--workers", type=int, default=2, help="local worker processes for the refits (default 2)")
+    p.add_argument("--dask", default=None, metavar="ADDRESS", help="run the refits on a dask.distributed cluster")
+    p.set_defaults(func=_cmd_diagnose)
+
+
+def _effect_ids():
+    from .effects import EFFECTS
+
+    return list(EFFECTS)
+
+
+def _cmd_diagnose(args) -> int:
+    from .diagnosis import DiagnosisOptions, diagnose
+    from .effects import EFFECTS
+
+    effects = "all" if args.effects.strip() == "all" else [e.strip() for e in args.effects.split(",") if e.strip()]
+    for e in (effects if effects != "all" else []):
+        if e not in EFFECTS:
+            raise CLIError(f"--effects {e!r}: unknown effect; choose from {', '.join(EFFECTS)}")
+    folds = args.folds if args.folds == "loo" else _int_arg(args.folds, "--folds")
+    dopts = DiagnosisOptions(effects=effects, folds=folds, alpha=args.alpha, max_effects=args.max_effects,
+                             workers=args.workers, dask=args.dask, seed=args.seed or 0)
+    say = lambda msg: print(f"[diagnose] {msg}", file=sys.stderr, flush=True)  # noqa: E731
+    res = diagnose(args.data, coating=args.coating, fit_options=_fit_options(args), options=dopts, progress=say)
+    print(f"wrote {res.save_json(args.json)}", file=sys.stderr)
+    print(res.report())
+    if args.plots:
+        paths = res.save_plots(args.plots)
+        print(f"wrote {len(paths)} figure file(s) to {args.plots}")
+    return 0
+
+
+def _int_arg(text: str, flag: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise CLIError(f"{flag} {text!r}: expected 'loo' or an integer") from None
+
+
 # ----------------------------------------------------------------------------- bench
 def _add_bench(sub):
     p = sub.add_parser("bench", help="speed benchmark of the simulator against the smooth route",
@@ -327,7 +378,7 @@ def _cmd_bench(args) -> int:
 
 
 # ----------------------------------------------------------------------------- main
-_COMMANDS = [_add_demo, _add_simulate, _add_regimes, _add_analyze, _add_fit, _add_bench]
+_COMMANDS = [_add_demo, _add_simulate, _add_regimes, _add_analyze, _add_fit, _add_diagnose, _add_bench]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -109,13 +109,15 @@ class FitOptions:
         object.__setattr__(self, "free", free)
         if not free:
             raise ValueError("free: at least one parameter must be free")
+        from .nlp import MEASUREMENT
+
         model = Model(get_law(self.law))
-        allowed = set(model.parameter_names)
+        allowed = set(model.parameter_names) | set(MEASUREMENT)
         for name in free:
             if name not in allowed:
                 raise ValueError(
                     f"free: {name!r} is not a parameter of the {self.law} model; "
-                    f"choose from {', '.join(model.parameter_names)}"
+                    f"choose from {', '.join(model.parameter_names + MEASUREMENT)}"
                 )
         if len(set(free)) != len(free):
             raise ValueError(f"free: {free} lists a parameter twice")
@@ -157,6 +159,9 @@ class RunData:
     plateau_mean_e: np.ndarray | None = None  # m
     plateau_mean_steps: np.ndarray | None = None
     plateau_level0: np.ndarray | None = None  # data estimate of the block position, m
+    plateau_mean_t: np.ndarray | None = None  # mean frame time, s (drift)
+    frame_phases: np.ndarray | None = None  # distinct step phases of the frames (motion blur)
+    phase_counts: np.ndarray | None = None  # plateaus × phases: frame counts
     s_nn: float = 0.0  # pooled within-plateau Σ(n − n̄)²
     slope_hat: float = 0.0  # pooled within-plateau staircase slope, m/step
     s_res: float = 0.0  # pooled within-plateau residual sum of squares, m²
@@ -262,9 +267,15 @@ def _run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray | Non
     slope = s_en / s_nn if s_nn > 0 else tr.step_size
     s_res = s_ee - (s_en**2 / s_nn if s_nn > 0 else 0.0)
     level0 = tr.step_size * mean_s - mean_e  # data estimate of each plateau's block position
+    t = np.asarray(tr.time_s, float)
+    mean_t = np.bincount(pof[use], weights=t[use], minlength=P) / np.maximum(n, 1)
+    u = np.round(np.mod(t[use] * tr.step_frequency - ev.step_phase, 1.0), 6) % 1.0
+    phases, ui = np.unique(u, return_inverse=True)
+    counts = np.zeros((P, len(phases)))
+    np.add.at(counts, (pof[use], ui), 1.0)
     return RunData(
         kind="events", plateau_n=n, plateau_mean_e=mean_e, plateau_mean_steps=mean_s,
-        plateau_level0=level0, s_nn=s_nn, slope_hat=slope,
+        plateau_level0=level0, plateau_mean_t=mean_t, frame_phases=phases, phase_counts=counts, s_nn=s_nn, slope_hat=slope,
         s_res=max(s_res, 0.0), trigger_steps=np.asarray(triggers, int), **base,
     )
 
@@ -344,7 +355,9 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
             continue
         run_data.append(rd)
     start, start_source = _start_values(run_data, law, preset, opts)
-    values = {**model.defaults(preset), **start}
+    from .nlp import MEASUREMENT
+
+    values = {**model.defaults(preset), **{n: preset[n] for n in MEASUREMENT}, **start}
     # a creep run is used only where the model at the start creeps too
     if any(r.kind == "creep" for r in run_data):
         from .simulation import SimulationOptions, simulate_run, RunConditions

@@ -47,7 +47,10 @@ from .arcs import ArcFunctions, arc_functions
 from .model import LENGTH_UNIT, Model
 from .params import SPECS
 
-__all__ = ["Problem", "ThetaMap"]
+__all__ = ["Problem", "ThetaMap", "MEASUREMENT"]
+
+MEASUREMENT = ("drift_rate", "exposure")
+"""Camera-side parameters the residuals model (the zero offset is ``free_offset``)."""
 
 log = logging.getLogger(__name__)
 
@@ -196,7 +199,7 @@ class Problem:
         self.i_phi = self.i_x + P  # per events run: the phase its slips recur at
         self.n_w = self.i_phi + len(ev_runs)
         idx = {id(r): i for i, r in enumerate(self.runs)}
-        pl = dict(run=[], n=[], e=[], s=[], x0=[])
+        pl = dict(run=[], n=[], e=[], s=[], x0=[], t=[])
         ev = dict(run=[], prev=[], step=[], first=[], gap=[])
         p0 = 0
         for r in ev_runs:
@@ -207,6 +210,7 @@ class Problem:
             pl["e"].append(r.plateau_mean_e)
             pl["s"].append(r.plateau_mean_steps)
             pl["x0"].append(r.plateau_level0)
+            pl["t"].append(r.plateau_mean_t if r.plateau_mean_t is not None else r.plateau_mean_s / r.fp)
             for i in range(Er):
                 ev["run"].append(ri)
                 ev["prev"].append(p0 + i)
@@ -216,7 +220,8 @@ class Problem:
             p0 += Pr
         cat = lambda v: np.concatenate(v) if v else np.zeros(0)  # noqa: E731
         self.pl_run = np.array(pl["run"], int)
-        self.pl_n, self.pl_mean_e, self.pl_mean_s, self.pl_x0 = (cat(pl[k]) for k in ("n", "e", "s", "x0"))
+        self.pl_n, self.pl_mean_e, self.pl_mean_s, self.pl_x0, self.pl_mean_t = (
+            cat(pl[k]) for k in ("n", "e", "s", "x0", "t"))
         self.ev_run = np.array(ev["run"], int)
         self.ev_prev = np.array(ev["prev"], int)
         self.ev_step = np.array(ev["step"], float)
@@ -236,8 +241,9 @@ class Problem:
 
     # ---------------------------------------------------------------- physics helpers
     def params(self, th) -> dict:
-        """Model parameter values (numbers or MX), the free ones from scaled ``th``."""
-        P = {n: self.values[n] for n in self.model.parameter_names}
+        """Model and measurement parameter values (numbers or MX), the free ones from
+        scaled ``th``."""
+        P = {n: self.values.get(n, SPECS[n].nominal) for n in self.model.parameter_names + MEASUREMENT}
         ops = ca if isinstance(th, ca.MX) else np
         P.update(zip(self.theta.names, self.theta.from_scaled(th, ops=ops)))
         return P
@@ -274,6 +280,34 @@ class Problem:
             f_lo = f_lo + (ops.fmin(gain, 0.9 * width) if ops is ca else np.minimum(gain, 0.9 * width))
         return (cap - f_lo) / (f_hi - f_lo)
 
+    def _camera_terms(self, P, step):
+        """What the camera adds to each plateau's mean elongation (m).
+
+        Drift: + drift_rate·t̄_p (t̄_p the plateau's mean frame time).
+        Motion blur: a frame at step phase u (fraction of the step interval since the
+        last step) averaging e over an exposure T centred on it reads, with h = T·fp/2
+        (T·fp ≤ 1),  e(t) + Δx·[max(0, u + h − 1) − max(0, h − u)]/(2h): a part of the
+        next step when the window reaches it, minus a part of the current one when the
+        window starts before it. Frames placed symmetrically in the step interval (the
+        usual two frames per step at u = ¼, ¾) cancel in the plateau mean: the blur then
+        shows only in frames taken during a slip, which the plateaus leave out.
+        """
+        out = ca.DM.zeros(self.P, 1)
+        if "drift_rate" in self.theta.names or self.values.get("drift_rate", 0.0) != 0.0:
+            out = out + P["drift_rate"] * ca.DM(self.pl_mean_t)
+        if "exposure" in self.theta.names or self.values.get("exposure", 0.0) != 0.0:
+            rows = []
+            for r in self.runs:
+                if r.kind != "events":
+                    continue
+                u = ca.DM(r.frame_phases).T  # 1 × U
+                h = P["exposure"] * r.fp / 2
+                b = (ca.fmax(0, u + h - 1) - ca.fmax(0, h - u)) / (2 * h + 1e-30)
+                counts = ca.DM(r.phase_counts)  # plateaus × U
+                rows.append(ca.mtimes(counts, b.T) / ca.DM(np.maximum(r.plateau_n, 1)))
+            out = out + step * ca.vertcat(*rows)
+        return out
+
     # ---------------------------------------------------------------- symbolic NLP
     def _symbolic(self, w, Y):
         """Arc inputs A(w), residuals r(w, Y), constraints g(w, Y); Y = (slip, end state)."""
@@ -286,10 +320,13 @@ class Problem:
         if self.P:
             off = w[self.i_off + self.pl_run] if self.n_off else 0.0
             model_e = step * ca.DM(self.pl_mean_s) - x_um * LENGTH_UNIT + off * LENGTH_UNIT
+            model_e = model_e + self._camera_terms(P, step)
             res.append(ca.sqrt(ca.DM(self.pl_n)) * (ca.DM(self.pl_mean_e) - model_e) / ca.DM(self.pl_sigma))
+        drift = P["drift_rate"]
         for r in self.runs:
             if r.kind == "events" and r.s_nn > 0:
-                res.append(math.sqrt(r.s_nn) * (step - r.slope_hat) / r.sigma)
+                # a drift adds drift/fp per step to the staircase slope
+                res.append(math.sqrt(r.s_nn) * (step + drift / r.fp - r.slope_hat) / r.sigma)
         A, g = None, ca.MX(0, 1)
         if E:
             x_prev = x_um[self.ev_prev] * LENGTH_UNIT
@@ -667,6 +704,33 @@ class Problem:
             return np.zeros(0, int)
         phase_runs = sorted(self.phase_of_run, key=self.phase_of_run.get)
         return np.r_[self.ev_run[self.ev_next], np.array(phase_runs, int)]
+
+    def information(self, w: np.ndarray, evaluated=None) -> np.ndarray:
+        """Gauss–Newton information on the scaled free parameters, every other variable
+        eliminated under the linearised constraints (a Schur complement). The parameters
+        need not be determined (a singular complement is legitimate: a run alone, or a
+        candidate effect the baseline's parameters absorb), so a tiny ridge ε makes the
+        KKT matrix invertible and is subtracted again: (C_ε)⁻¹ − εI is the exact complement."""
+        r, g, Jr, Jg = evaluated if evaluated is not None else self.evaluate(w, jac=True)
+        H = (Jr.T @ Jr).tocsc().toarray()
+        Jg = Jg.toarray()
+        n_th = self.n_theta
+        lbx, ubx = self.bounds()
+        keep = np.array([i for i in range(self.n_w) if i < n_th or lbx[i] < ubx[i]])
+        H, Jg = H[np.ix_(keep, keep)], Jg[:, keep]
+        eps = 1e-9 * max(np.abs(np.diag(H)[:n_th]).max(), 1.0)
+        H[:n_th, :n_th] += eps * np.eye(n_th)
+        m = Jg.shape[0]
+        K = np.block([[H, Jg.T], [Jg, np.zeros((m, m))]]) if m else H
+        rhs = np.zeros((K.shape[0], n_th))
+        rhs[:n_th, :n_th] = np.eye(n_th)
+        if not np.all(np.isfinite(K)):
+            raise ValueError("the NLP Jacobian is not finite at this point")
+        sol = np.linalg.solve(K, rhs)
+        C = sol[:n_th, :n_th]
+        C = 0.5 * (C + C.T)
+        info = np.linalg.inv(C) - eps * np.eye(n_th)
+        return 0.5 * (info + info.T)
 
     def covariance(self, w: np.ndarray, fixed_idx: Iterable[int] = (), robust: bool = True) -> np.ndarray:
         """Covariance of the parameters and offsets at the solution w.

@@ -1,0 +1,178 @@
+"""One candidate refit of the diagnosis, as a picklable task for any Executor.
+
+A task carries everything a worker process (local or on a dask cluster) needs to rebuild
+the NLP — the runs' compressed data, the law, the parameter values, which parameters are
+free, the arc spans and the warm start — and returns numbers only: CasADi Functions do
+not cross process boundaries, so each worker builds its own (the compiled arc code is
+cached on disk, so that is quick).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from .features import feature_values, gap
+from .heldout import heldout_residuals
+
+__all__ = ["CandidateTask", "run_candidate"]
+
+
+@dataclass
+class CandidateTask:
+    """A refit of the current model with ``extra`` parameters freed (or another law)."""
+
+    effect: str | None  # None: the current model itself (its held-out gap)
+    runs: list
+    law: str
+    values: dict  # every parameter's value: fitted ones from the current model
+    free: tuple  # the current model's free parameters
+    extra: tuple = ()  # the candidate's parameters, freed in addition
+    replace_free: tuple = ()  # parameters no longer free (a law candidate drops the old law's)
+    bounds: dict = field(default_factory=dict)
+    starts: list = field(default_factory=list)  # start values of the extra parameters (best kept)
+    w_tail: Any = None  # the current solution after the parameters (positions, phases)
+    ev_M: Any = None
+    options: Any = None  # the baseline's FitOptions
+    folds: list = field(default_factory=list)
+    staged: bool = False  # a law candidate starts from the staged start of identify.start
+    max_iter: int = 30
+    threads: int = 1
+
+
+def _problem(task: CandidateTask, free: tuple):
+    from .laws import get_law
+    from .model import Model
+    from .nlp import Problem
+
+    bounds = {n: b for n, b in {**dict(task.options.bounds), **task.bounds}.items() if n in free}
+    opts = replace(task.options, free=free, bounds=bounds, fixed={}, start={}, law=task.law,
+                   threads=task.threads, max_iter=task.max_iter)
+    prob = Problem(task.runs, Model(get_law(task.law)), dict(task.values), opts)
+    if task.ev_M is not None and len(task.ev_M) == prob.E:
+        prob.ev_M = np.array(task.ev_M)
+    return prob.build()
+
+
+def run_candidate(task: CandidateTask) -> dict:
+    """Refit, then the numbers the diagnosis scores the candidate by."""
+    t0 = time.perf_counter()
+    free = tuple(n for n in task.free if n not in task.replace_free) + tuple(
+        n for n in task.extra if n not in task.free)
+    try:
+        prob = _problem(task, free)
+        best = None
+        for start in (task.starts or [{}]):
+            start = dict(start)
+            staged = bool(start.pop("_staged", False)) or task.staged
+            vals = {**task.values, **start}
+            th_vals = {n: vals[n] for n in free}
+            inits = []
+            if staged:
+                # far from the current solution (another law, or an effect whose null sits
+                # on its bound): from these values, and from the staged start of a fit
+                inits.append(prob.initial_w(th_vals))
+                try:
+                    from .start import staged_start
+
+                    inits.append(prob.initial_w(staged_start(prob, th_vals)[0]))
+                except Exception:  # the staged start is a convenience
+                    pass
+            else:
+                th = prob.theta.to_scaled(th_vals)
+                inits.append(np.r_[np.clip(th, prob.theta.lo + 1e-9, prob.theta.hi - 1e-9), task.w_tail])
+            for w0 in inits:
+                if prob.E:
+                    prob.size_arcs(w0)
+                if not np.all(np.isfinite(prob.residuals(w0))):
+                    continue
+                sol = prob.solve(w0)
+                if np.isfinite(sol["f"]) and (best is None or sol["f"] < best["f"]):
+                    best = sol
+        if best is None:
+            raise ValueError("the model cannot be evaluated at any start (an arc or the trigger encoding "
+                             "is not finite there)")
+        w = best["w"]
+        ev = prob.evaluate(w, jac=True)
+        r = ev[0]
+        chi2 = float(r @ r) + prob.chi2_constant()
+        est = _estimates(prob, w, ev)
+        info = _confounding(prob, w, ev, task.extra if task.effect else ())
+        feats = feature_values(prob, w, r)
+        fitted = gap(feats)
+        heldout = dict(gap_um=float("nan"))
+        if task.folds:
+            try:
+                rho, _ = heldout_residuals(prob, w, task.folds, evaluated=ev)
+                heldout = gap(feature_values(prob, w, rho))
+            except Exception as err:  # the fit stands; only its held-out check is missing
+                heldout = dict(gap_um=float("nan"), error=f"{type(err).__name__}: {err}")
+        values = dict(task.values)
+        values.update(zip(prob.theta.names, (float(v) for v in prob.theta.from_scaled(w[: prob.n_theta]))))
+        return dict(
+            effect=task.effect, ok=bool(np.isfinite(chi2)), status=best["status"], iterations=best["iterations"],
+            chi2=chi2, n_obs=prob.n_observations(), n_eff=prob.n_effective(), free=list(free), law=task.law,
+            values=values, estimates=est, confounding=info, r=r, w=w, ev_M=np.array(prob.ev_M),
+            gap=fitted, heldout=heldout, wall_s=time.perf_counter() - t0, error=None,
+        )
+    except Exception as err:  # one failed candidate never sinks the diagnosis
+        return dict(effect=task.effect, ok=False, status=f"failed: {type(err).__name__}: {err}", error=str(err),
+                    wall_s=time.perf_counter() - t0)
+
+
+def _estimates(prob, w, ev) -> dict:
+    """value, stderr, 95 % interval of every free parameter (robust covariance)."""
+    from .report import _scaled_ci
+
+    tm = prob.theta
+    th = w[: prob.n_theta]
+    vals = tm.from_scaled(th)
+    d = tm.jacobian_diag(th)
+    try:
+        C = prob.covariance(w, robust=True)
+    except Exception:
+        C = np.full((prob.n_theta, prob.n_theta), np.nan)
+    out = {}
+    for i, n in enumerate(tm.names):
+        var = C[i, i]
+        sig = math.sqrt(var) if np.isfinite(var) and var >= 0 else float("nan")
+        ci = _scaled_ci(th[i], sig, tm, i) if np.isfinite(sig) else None
+        out[n] = dict(value=float(vals[i]), stderr=float(abs(d[i]) * sig) if np.isfinite(sig) else None,
+                      ci95=list(ci) if ci is not None else None)
+    return out
+
+
+def _confounding(prob, w, ev, extra: Sequence[str]) -> dict:
+    """How much of each candidate parameter the other free parameters can mimic.
+
+    In the information metric (nuisances eliminated), R² of the candidate's direction
+    regressed on the others' (1: exactly absorbed), and the others it leans on most."""
+    names = prob.theta.names
+    if not extra:
+        return {}
+    try:
+        I = prob.information(w, evaluated=ev)
+    except Exception as err:
+        return {n: dict(r2=float("nan"), partners=[], note=str(err)) for n in extra}
+    out = {}
+    for n in extra:
+        if n not in names:
+            continue
+        c = names.index(n)
+        others = [i for i in range(len(names)) if names[i] not in extra]
+        Icc = I[c, c]
+        if not others or Icc <= 0:
+            out[n] = dict(r2=0.0 if Icc > 0 else 1.0, partners=[])
+            continue
+        Ibb = I[np.ix_(others, others)]
+        Ibc = I[others, c]
+        coef = np.linalg.lstsq(Ibb, Ibc, rcond=1e-12)[0]
+        r2 = float(np.clip(Ibc @ coef / Icc, 0.0, 1.0))
+        corr = [(names[i], float(I[i, c] / math.sqrt(max(I[i, i] * Icc, 1e-300)))) for i in others]
+        corr.sort(key=lambda t: -abs(t[1]))
+        out[n] = dict(r2=r2, partners=[dict(parameter=a, score_correlation=b) for a, b in corr if abs(b) > 0.3][:3])
+    return out

@@ -1,0 +1,530 @@
+"""Diagnose the sim-to-real gap: where it lies, which unmodelled effect causes it, how far
+it shrinks once that effect is added — on runs the fit did not see (DESIGN.md §4).
+
+1. The baseline is fitted (:func:`identify.fit`) and its misfit located feature by
+   feature (:func:`identify.where.where`).
+2. Every applicable candidate of the effect library (:mod:`identify.effects`) is refitted
+   with its parameter(s) freed, warm-started from the current model
+   (:func:`identify.candidates.run_candidate`, through a ``concurrent.futures`` Executor:
+   local processes or a dask cluster), and scored by the likelihood ratio (p-value),
+   ΔAIC and ΔBIC; alternative aging laws (not nested) by ΔAIC alone.
+3. A candidate is named only when it is significant (p below α over the number of
+   candidates, or ΔAIC < −10 for a law), the model's own parameters cannot mimic it
+   (R² < 0.99 in the information metric, else ``confounded_with`` names them), no other
+   candidate explains the same residuals as well (nearly parallel residual change and
+   |ΔΔAIC| < 10: both are reported as confounded and neither is named), and it shrinks
+   the gap on held-out runs. Forward selection adds it and tries the rest again.
+4. Verdict: ``adequate`` when the final model's misfit is consistent with the noise in
+   every feature (Bonferroni over the features) and no candidate is left significant;
+   else ``unexplained`` (a gap no candidate closes, or one only confounded candidates do).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+import numpy as np
+from scipy import stats
+
+from .candidates import CandidateTask, run_candidate
+from .effects import EFFECTS, get_effect
+from .fit import FitOptions, fit
+from .heldout import folds_of
+from .where import Misfit, where
+
+__all__ = ["DiagnosisOptions", "DiagnosisResult", "diagnose", "make_executor"]
+
+log = logging.getLogger(__name__)
+
+LAW_DELTA_AIC = -10.0  # a non-nested law is preferred only with strong support
+SAME_RESIDUALS = 0.9  # cosine of two candidates' residual changes above which they explain the same thing
+TIE_AIC = 10.0
+MIN_CLOSED = 0.3  # a named effect closes at least this share of the held-out gap above the noise
+
+
+@dataclass(frozen=True)
+class DiagnosisOptions:
+    """How to diagnose.
+
+    Parameters
+    ----------
+    effects : "all" or sequence of str
+        Candidate ids (:data:`identify.effects.EFFECTS`).
+    folds : "loo" or int
+        Held-out runs: leave-one-run-out or k-fold (seeded).
+    alpha : float
+        Family-wise level of the tests (Bonferroni over candidates, and over features).
+    max_effects : int
+        Forward selection stops after this many.
+    workers : int
+        Local worker processes (1: in this process).
+    dask : str or None
+        Address of a dask.distributed scheduler (overrides ``workers``).
+    seed : int
+    """
+
+    effects: Any = "all"
+    folds: Any = "loo"
+    alpha: float = 0.01
+    max_effects: int = 3
+    workers: int = 1
+    dask: str | None = None
+    seed: int = 0
+    max_iter: int = 30
+
+    def __post_init__(self):
+        ids = tuple(EFFECTS) if self.effects in ("all", None) else tuple(self.effects)
+        for e in ids:
+            get_effect(e)
+        object.__setattr__(self, "effects", ids)
+        if not 0 < self.alpha < 1:
+            raise ValueError(f"alpha = {self.alpha!r}: must lie in (0, 1)")
+        if int(self.workers) < 1:
+            raise ValueError(f"workers = {self.workers!r}: must be a positive integer")
+        if self.folds not in ("loo",) and not (isinstance(self.folds, int) and self.folds >= 2):
+            raise ValueError(f"folds = {self.folds!r}: use 'loo' or an integer >= 2")
+
+
+# ----------------------------------------------------------------------------- executors
+class _InProcess(cf.Executor):
+    """The Executor interface, run in this process (workers = 1; debugging)."""
+
+    def submit(self, fn, *args, **kwargs):
+        f: cf.Future = cf.Future()
+        try:
+            f.set_result(fn(*args, **kwargs))
+        except BaseException as err:  # noqa: BLE001 - handed to the caller through the future
+            f.set_exception(err)
+        return f
+
+
+def make_executor(workers: int = 1, dask: str | None = None):
+    """(executor, closer): local processes, in-process, or a dask cluster's executor."""
+    if dask:
+        try:
+            from distributed import Client
+        except ImportError:
+            raise ValueError("--dask needs the optional dependency: pip install 'nanofrictor[dask]'") from None
+        client = Client(dask)
+        return client.get_executor(), client.close
+    if workers <= 1:
+        ex = _InProcess()
+        return ex, ex.shutdown
+    import multiprocessing as mp
+
+    # fork where the platform has it: a researcher's script without an
+    # ``if __name__ == "__main__"`` guard would run again in every spawned worker; the
+    # parent's CasADi thread pools are joined between calls, so forking is safe here
+    method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+    ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method))
+    return ex, ex.shutdown
+
+
+# ----------------------------------------------------------------------------- result
+@dataclass
+class DiagnosisResult:
+    """The outcome of :func:`diagnose`."""
+
+    verdict: str
+    effects: list
+    where: list  # Misfit, baseline
+    where_final: list  # Misfit, final model
+    candidates: list  # dicts, first round, best first
+    rounds: list  # per round: list of candidate dicts
+    baseline: Any  # FitResult
+    final: dict  # values, free, law, gap, heldout gap
+    confounded: list
+    options: DiagnosisOptions
+    timing: dict
+    notes: list = field(default_factory=list)
+    final_problem: Any = field(repr=False, default=None)
+    final_w: Any = field(repr=False, default=None)
+
+    def report(self) -> str:
+        L = []
+        L.append("[[Diagnosis]]")
+        L.append(f"    verdict            = {self.verdict}")
+        L.append(f"    effects added      = {', '.join(self.effects) if self.effects else '(none)'}")
+        for grp in self.confounded:
+            L.append(f"    confounded         = {' | '.join(grp['effects'])}: {grp['why']}")
+        b = self.rounds[0][0] if self.rounds and self.rounds[0] else None
+        base = next((c for c in (self.rounds[0] if self.rounds else []) if c.get("effect") is None), None)
+        if base:
+            L.append(f"    gap (fitted runs)  = {base['gap']['gap_um'] * 1e3:.1f} nm before; noise floor "
+                     f"{base['gap']['noise_um'] * 1e3:.1f} nm")
+            L.append(f"    gap (held out)     = {base['heldout'].get('gap_um', float('nan')) * 1e3:.1f} nm before")
+        L.append(f"    gap after          = {self.final['gap_um'] * 1e3:.1f} nm fitted, "
+                 f"{self.final['heldout_gap_um'] * 1e3:.1f} nm held out ({self.options.folds} folds)")
+        L.append(f"    wall time          = {self.timing['total_s']:.1f} s ({self.timing['refits']} refits, "
+                 f"{self.options.workers if not self.options.dask else 'dask'} worker(s))")
+        L.append("[[Where (baseline), ranked]]")
+        for m in self.where:
+            L.append(f"    {m.feature:27s} {m.misfit_sigma:5.1f} σ  p = {m.p_value:.2g}  {m.detail}")
+        if self.effects:
+            L.append("[[Where (final model)]]")
+            for m in self.where_final[:5]:
+                L.append(f"    {m.feature:27s} {m.misfit_sigma:5.1f} σ  p = {m.p_value:.2g}  {m.detail}")
+        for k, rnd in enumerate(self.rounds):
+            L.append(f"[[Candidates, round {k + 1}]]" + (f" (after adding {', '.join(self.effects[:k])})" if k else ""))
+            L.append(f"    {'effect':24s} {'Δnll':>9s} {'p':>9s} {'ΔAIC':>9s} {'ΔBIC':>9s} {'gap µm':>15s} "
+                     f"{'held-out µm':>15s}  note")
+            for c in rnd:
+                if c.get("effect") is None:
+                    continue
+                if not c.get("ok"):
+                    L.append(f"    {c['effect']:24s} {c.get('reason') or c.get('status')}")
+                    continue
+                p = c["p_value"]
+                L.append(f"    {c['effect']:24s} {c['delta_nll']:9.2f} {p if p is not None else float('nan'):9.2g} "
+                         f"{c['delta_aic']:9.1f} {c['delta_bic']:9.1f} "
+                         f"{c['gap_before_um']:6.3f}->{c['gap_after_um']:<7.3f} "
+                         f"{c['heldout_gap_before_um']:6.3f}->{c['heldout_gap_after_um']:<7.3f}  {c['note']}")
+        for n in self.notes:
+            L.append(f"    note: {n}")
+        return "\n".join(L)
+
+    def to_json(self) -> dict:
+        return dict(
+            verdict=self.verdict, effects=list(self.effects),
+            where=[m.to_json() for m in self.where],
+            where_final=[m.to_json() for m in self.where_final],
+            candidates=[_cand_json(c) for c in self.candidates],
+            rounds=[[_cand_json(c) for c in rnd if c.get("effect")] for rnd in self.rounds],
+            confounded=self.confounded,
+            final=self.final,
+            baseline=self.baseline.to_json() if self.baseline is not None else None,
+            options=dict(effects=list(self.options.effects), folds=self.options.folds, alpha=self.options.alpha,
+                         workers=self.options.workers, dask=bool(self.options.dask)),
+            timing=self.timing, notes=self.notes,
+        )
+
+    def save_json(self, path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.to_json(), indent=2, default=_json_default))
+        return path
+
+    def save_plots(self, folder) -> list:
+        from .plots_diagnosis import save_diagnosis_plots
+
+        return save_diagnosis_plots(self, folder)
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o).__name__)
+
+
+_CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delta_bic", "confounded_with",
+              "gap_before_um", "gap_after_um", "heldout_gap_before_um", "heldout_gap_after_um", "significant",
+              "named", "note", "ok", "status", "iterations", "wall_s", "law", "r2_with_model",
+              "closed_fraction", "estimates")
+
+
+def _cand_json(c: dict) -> dict:
+    return {k: c.get(k) for k in _CAND_KEYS}
+
+
+# ----------------------------------------------------------------------------- driver
+def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None = None,
+             options: DiagnosisOptions | None = None, baseline=None, executor: cf.Executor | None = None,
+             progress: Callable[[str], None] | None = None) -> DiagnosisResult:
+    """Diagnose the gap between a baseline model and the data.
+
+    Parameters
+    ----------
+    data : paths, Traces or RunEvents
+        As for :func:`identify.fit` (ignored when ``baseline`` is given).
+    fit_options : FitOptions
+        The baseline (e.g. ``fixed={"A": 0}`` for the paper's story).
+    options : DiagnosisOptions
+    baseline : FitResult, optional
+        An existing baseline fit to diagnose (saves its fit).
+    executor : concurrent.futures.Executor, optional
+        Where the candidate refits run (default from ``options.workers`` / ``options.dask``).
+    """
+    opts = options or DiagnosisOptions()
+    fopts = fit_options or FitOptions()
+    say = progress or (lambda m: log.info(m))
+    t0 = time.perf_counter()
+    if baseline is None:
+        say("baseline fit")
+        baseline = fit(data, coating=coating, options=fopts, progress=say)
+    prob, w = baseline.problem, baseline.w
+    fopts = prob.opts
+    runs = prob.runs
+    folds = folds_of(len(runs), opts.folds, seed=opts.seed)
+    where0 = where(prob, w)
+    from .params import parameter_set
+
+    # every parameter any candidate may free (another law's too), at the baseline's values
+    values0 = {**parameter_set(baseline.coating), **prob.values, **baseline.values}
+    current = dict(values=values0, free=tuple(prob.theta.names), law=prob.law.name,
+                   w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta)
+    own, closer = (executor, None) if executor is not None else make_executor(opts.workers, opts.dask)
+    threads = 1 if (opts.workers > 1 or opts.dask) else max(int(fopts.threads), 1)
+    rounds, effects, confounded, notes = [], [], [], []
+    n_refits = 0
+    try:
+        remaining = list(opts.effects)
+        while True:
+            tasks, skipped = _tasks(remaining, current, runs, fopts, folds, opts, threads, where_hint=where0)
+            say(f"round {len(rounds) + 1}: {len(tasks) - 1} candidate refit(s) and the current model, "
+                f"{len(folds)} held-out fold(s) each")
+            results = []
+            futs = {own.submit(run_candidate, t): t for t in tasks}
+            for i, fut in enumerate(cf.as_completed(futs), 1):
+                t = futs[fut]
+                try:
+                    res = fut.result()
+                except Exception as err:  # a lost worker: the candidate fails, the rest goes on
+                    res = dict(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err))
+                say(f"  {i}/{len(tasks)} done: {t.effect or 'current model'} ({res.get('status')})")
+                results.append(res)
+            n_refits += len(tasks)
+            base = next(r for r in results if r["effect"] is None)
+            if not base.get("ok"):
+                notes.append(f"the current model could not be re-evaluated: {base.get('status')}")
+                rounds.append([base] + skipped)
+                break
+            scored = _score(results, base, opts, len([t for t in tasks if t.effect]))
+            rnd = [base] + sorted(scored, key=_rank) + skipped
+            rounds.append(rnd)
+            chosen, group = _select(scored, base)
+            if group:
+                confounded.append(group)
+            if chosen is None or len(effects) >= opts.max_effects:
+                break
+            chosen["named"] = True
+            effects.append(chosen["effect"])
+            remaining = [e for e in remaining if e != chosen["effect"]]
+            eff = get_effect(chosen["effect"])
+            current = dict(values=chosen["values"], free=tuple(chosen["free"]), law=chosen["law"], w=chosen["w"],
+                           ev_M=chosen["ev_M"], n_theta=len(chosen["free"]))
+            say(f"added {chosen['effect']} ({', '.join(eff.parameters) or eff.law}); trying the rest again")
+            if not remaining or len(effects) >= opts.max_effects:
+                # the final model's held-out gap still comes from the round that chose it
+                break
+    finally:
+        if closer is not None:
+            closer()
+    final_prob, final_w = _rebuild(current, runs, fopts, prob)
+    where_final = where(final_prob, final_w) if effects else where0
+    last = rounds[-1] if rounds else []
+    final_res = next((c for c in last if c.get("effect") == (effects[-1] if effects else None)), None) \
+        if effects else next((c for c in last if c.get("effect") is None), None)
+    if effects and final_res is None:
+        final_res = next(c for rnd in rounds for c in rnd if c.get("effect") == effects[-1])
+    n_feat = max(len(where_final), 1)
+    misfit_left = [m for m in where_final if m.p_value < opts.alpha / n_feat]
+    still = [c for c in (rounds[-1] if rounds else []) if c.get("significant") and not c.get("named")
+             and c.get("effect") not in effects]
+    if not misfit_left and not still:
+        verdict = "adequate"
+    else:
+        verdict = "unexplained"
+        if misfit_left:
+            notes.append("misfit left in: " + ", ".join(f"{m.feature} ({m.misfit_sigma:.1f} σ)" for m in misfit_left))
+        if still:
+            notes.append("significant but not named: " + ", ".join(
+                f"{c['effect']} ({c['note']})" for c in still))
+    ok = bool(final_res and final_res.get("ok"))
+    final = dict(law=current["law"], free=list(current["free"]),
+                 values={n: current["values"][n] for n in current["free"]},
+                 gap_um=final_res["gap"]["gap_um"] if ok else float("nan"),
+                 heldout_gap_um=final_res["heldout"]["gap_um"] if ok else float("nan"),
+                 noise_um=final_res["gap"]["noise_um"] if ok else float("nan"))
+    if not ok:
+        verdict = "unexplained"
+        notes.append("the refits failed, so no gap could be measured: " + (final_res or {}).get("status", "?"))
+    return DiagnosisResult(
+        verdict=verdict, effects=effects, where=where0, where_final=where_final,
+        candidates=[c for c in rounds[0] if c.get("effect")] if rounds else [], rounds=rounds,
+        baseline=baseline, final=final, confounded=confounded, options=opts,
+        timing=dict(total_s=time.perf_counter() - t0, refits=n_refits,
+                    baseline_fit_s=float(baseline.solver.get("wall_time_s", float("nan")))),
+        notes=notes, final_problem=final_prob, final_w=final_w,
+    )
+
+
+def _rank(c):
+    return (0 if c.get("ok") else 1, c.get("delta_aic", math.inf) if c.get("ok") else 0)
+
+
+def _tasks(ids, current, runs, fopts, folds, opts, threads, where_hint):
+    """Tasks for the current model itself and every applicable candidate."""
+    tail = np.asarray(current["w"])[current["n_theta"]:]
+    common = dict(runs=runs, values=current["values"], free=current["free"], w_tail=tail, ev_M=current["ev_M"],
+                  options=fopts, folds=folds, max_iter=opts.max_iter, threads=threads)
+    tasks = [CandidateTask(effect=None, law=current["law"], **common)]
+    skipped = []
+    for eid in ids:
+        eff = get_effect(eid)
+        why = eff.applicable(tuple(current["free"]), current["law"])
+        if why:
+            skipped.append(dict(effect=eid, ok=False, reason=f"not applicable: {why}", status="not applicable",
+                                parameters=list(eff.parameters), note=f"not applicable: {why}"))
+            continue
+        if eff.law is not None:
+            from .laws import get_law
+
+            old = get_law(current["law"]).parameters
+            new = get_law(eff.law).parameters
+            vals = dict(current["values"])
+            tasks.append(CandidateTask(
+                effect=eid, law=eff.law, extra=tuple(n for n in new if n not in old),
+                replace_free=tuple(n for n in old if n not in new), bounds=dict(eff.bounds),
+                starts=[{}], staged=True, **{**common, "values": vals}))
+            continue
+        nulls = eff.null_values(current["values"])
+        starts = _starts(eff, nulls, where_hint)
+        vals = {**current["values"], **nulls}
+        tasks.append(CandidateTask(effect=eid, law=current["law"], extra=tuple(eff.parameters),
+                                   bounds=dict(eff.bounds), starts=starts, **{**common, "values": vals}))
+    return tasks, skipped
+
+
+def _starts(eff, nulls, where_hint) -> list:
+    """Warm starts of a candidate's own parameters: the null, nudged off it where the
+    Jacobian vanishes there, and for the topography the ripple the residuals show."""
+    if eff.id == "topography":
+        pos = next((m for m in where_hint if m.feature == "position"), None)
+        lam = pos.extra.get("wavelength_m", 5e-6) if pos else 5e-6
+        amp = pos.extra.get("amplitude", 0.01) if pos else 0.01
+        ph = pos.extra.get("phase", 0.0) if pos else 0.0
+        # the residual ripple is a·sin(θ) + b·cos(θ) = amp·sin(θ + ph); the model's is the capacity
+        return [dict(topo_amp=s * max(amp, 1e-3), topo_phase=ph, topo_wavelength=lam) for s in (1.0, -1.0)]
+    if eff.id == "motion_blur":
+        return [dict(exposure=1e-4), dict(exposure=2e-3)]  # no slope at T = 0
+    if eff.id == "stick_threshold" and nulls.get("v_stick", 0.0) == 0.0:
+        return [dict(v_stick=1e-6), dict(v_stick=1e-4)]
+    return [dict(nulls)] + eff.nudges()
+
+
+def _score(results, base, opts, n_cand) -> list:
+    """Likelihood ratio, ΔAIC, ΔBIC, confounding and gaps of every candidate against base."""
+    out = []
+    alpha_c = opts.alpha / max(n_cand, 1)
+    r0 = base["r"]
+    n_obs = base["n_obs"]
+    for c in results:
+        if c["effect"] is None:
+            continue
+        eff = get_effect(c["effect"])
+        c["parameters"] = list(eff.parameters) if eff.nested else list(c.get("free", []))
+        if not c.get("ok"):
+            c["note"] = c.get("status", "failed")
+            c["significant"] = False
+            out.append(c)
+            continue
+        dk = c["n_eff"] - base["n_eff"]
+        dnll = 0.5 * (base["chi2"] - c["chi2"])
+        c["delta_nll"] = float(dnll)
+        c["delta_aic"] = float(-2 * dnll + 2 * dk)
+        c["delta_bic"] = float(-2 * dnll + dk * math.log(max(n_obs, 2)))
+        if eff.nested and dk > 0:
+            c["p_value"] = float(stats.chi2.sf(max(2 * dnll, 0.0), dk))
+            sig = c["p_value"] < alpha_c and c["delta_bic"] < 0
+        else:
+            c["p_value"] = None
+            sig = c["delta_aic"] < LAW_DELTA_AIC
+        c["significant"] = bool(sig)
+        c["gap_before_um"] = base["gap"]["gap_um"]
+        c["gap_after_um"] = c["gap"]["gap_um"]
+        c["heldout_gap_before_um"] = base["heldout"]["gap_um"]
+        c["heldout_gap_after_um"] = c["heldout"]["gap_um"]
+        conf = c.get("confounding") or {}
+        r2 = max((v.get("r2", 0.0) for v in conf.values()), default=0.0)
+        c["r2_with_model"] = float(r2) if np.isfinite(r2) else None
+        partners = sorted({p["parameter"] for v in conf.values() for p in v.get("partners", [])})
+        c["confounded_with"] = partners if (np.isfinite(r2) and r2 > 0.99) else []
+        c["dr"] = c["r"] - r0
+        c["estimate_text"] = ", ".join(
+            f"{n} = {_fmt(c['estimates'][n])}" for n in (eff.parameters if eff.nested else c.get("free", []))
+            if n in c["estimates"])
+        c["named"] = False
+        c["closed_fraction"] = _closed_fraction(c)
+        c["note"] = c["estimate_text"]
+        out.append(c)
+    return out
+
+
+def _fmt(e: dict) -> str:
+    v, se = e["value"], e.get("stderr")
+    return f"{v:.4g} ± {se:.2g}" if se is not None else f"{v:.4g}"
+
+
+def _closed_fraction(c) -> float:
+    """Share of the held-out gap above the noise floor that the candidate closes."""
+    noise = c.get("gap", {}).get("noise_um", 0.0)
+    ex = lambda g: math.sqrt(max(g * g - noise * noise, 0.0))  # noqa: E731
+    before, after = ex(c["heldout_gap_before_um"]), ex(c["heldout_gap_after_um"])
+    return (before - after) / before if before > 0 else 0.0
+
+
+def _select(scored, base):
+    """The candidate to add, and a confounded group when the best cannot be told apart."""
+    ok = [c for c in scored if c.get("ok") and c.get("significant")]
+    for c in ok:
+        if c["confounded_with"]:
+            c["note"] = (f"confounded with {', '.join(c['confounded_with'])} (R² = {c['r2_with_model']:.3f}): "
+                         "the model's own parameters mimic it; " + c["estimate_text"])
+    names = [c for c in ok if not c["confounded_with"]]
+    if not names:
+        return None, None
+    names.sort(key=lambda c: c["delta_aic"])
+    best = names[0]
+    ties = []
+    for c in names[1:]:
+        a, b = best["dr"], c["dr"]
+        cos = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300))
+        if abs(c["delta_aic"] - best["delta_aic"]) < TIE_AIC and cos > SAME_RESIDUALS:
+            ties.append((c, cos))
+    if ties:
+        grp = [best["effect"]] + [c["effect"] for c, _ in ties]
+        for c in [best] + [t for t, _ in ties]:
+            c["confounded_with"] = [e for e in grp if e != c["effect"]]
+            c["note"] = "confounded with " + ", ".join(c["confounded_with"]) + "; " + c["estimate_text"]
+        why = ("they change the residuals alike (cosine " + ", ".join(f"{cos:.2f}" for _, cos in ties)
+               + ") and fit equally well (|ΔΔAIC| < 10)")
+        return None, dict(effects=grp, why=why)
+    if not str(best.get("status", "")).startswith("Solve_Succeeded"):
+        best["note"] = f"significant but its refit did not converge ({best['status']}); " + best["estimate_text"]
+        return None, None
+    closed = _closed_fraction(best)
+    best["closed_fraction"] = closed
+    if not closed >= MIN_CLOSED:
+        best["note"] = (f"significant, but closes only {100 * max(closed, 0):.0f} % of the held-out gap above "
+                        f"the noise (needs {100 * MIN_CLOSED:.0f} %); " + best["estimate_text"])
+        return None, None
+    best["note"] = "added; " + best["estimate_text"]
+    return best, None
+
+
+def _rebuild(current, runs, fopts, prob0):
+    """The current model's NLP in this process (for the final 'where')."""
+    from dataclasses import replace
+
+    from .laws import get_law
+    from .model import Model
+    from .nlp import Problem
+
+    if tuple(current["free"]) == tuple(prob0.theta.names) and current["law"] == prob0.law.name:
+        return prob0, current["w"]
+    opts = replace(fopts, free=tuple(current["free"]), law=current["law"], fixed={}, start={},
+                   bounds={n: b for n, b in dict(fopts.bounds).items() if n in current["free"]})
+    p = Problem(runs, Model(get_law(current["law"])), dict(current["values"]), opts)
+    if len(current["ev_M"]) == p.E:
+        p.ev_M = np.array(current["ev_M"])
+    return p.build(), np.asarray(current["w"])

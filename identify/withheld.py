@@ -1,0 +1,101 @@
+"""Data sets with one effect switched on, for checking the diagnosis on data whose effect
+the baseline does not have (tests, ``tests/bench/bench_diagnosis.py``).
+
+The runs are those of the bundled data (``data/README.md``) — two springs, loads 5–60 µN,
+step frequencies 10–1000 Hz, rests from near τ to saturated, a creep run — at 90 nm of
+noise and two frames per step, with the simulator's stick option (v_stick = 1e-5 m/s,
+which the baseline then fixes). ``effect=None`` gives the baseline model itself;
+``effect="outside"`` an effect outside the library: every run's true normal load off its
+nominal value by its own random error (±15 %), which no single global parameter mimics.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from .effects import get_effect
+from .params import parameter_set
+
+__all__ = ["CONDITIONS", "QUICK_CONDITIONS", "withheld_dataset"]
+
+STICK = 1e-5
+
+# (k N/m, Nb µN, fp Hz, travel µm)
+CONDITIONS = (
+    (2.13, 5.0, 100.0, 30.0),
+    (2.13, 5.0, 30.0, 30.0),
+    (2.13, 10.0, 100.0, 30.0),
+    (2.13, 20.0, 300.0, 30.0),
+    (2.13, 30.0, 10.0, 33.8),
+    (20.3, 30.0, 100.0, 30.0),
+    (20.3, 30.0, 30.0, 30.0),
+    (20.3, 60.0, 100.0, 30.0),
+)
+QUICK_CONDITIONS = tuple((k, nb, fp, min(tr, 15.0)) for k, nb, fp, tr in CONDITIONS)
+
+
+def withheld_dataset(effect: str | None, magnitude: float | None = None, *, coating: str = "FOTAS",
+                     seed: int = 0, noise_nm: float = 90.0, conditions: Sequence = CONDITIONS,
+                     base: dict | None = None) -> list:
+    """Traces of ``conditions`` simulated with ``effect`` on (seeded noise per run).
+
+    Parameters
+    ----------
+    effect : str or None
+        An id of :data:`identify.effects.EFFECTS`, ``"outside"``, or None (no effect).
+    magnitude : float, optional
+        Value of the effect's parameter (default: its realistic magnitude).
+    base : dict, optional
+        Parameter overrides of the truth (e.g. ``{"A": 0.015}``).
+    """
+    from .simulation import simulate
+
+    truth = dict(parameter_set(coating))
+    truth.update(v_stick=STICK)
+    truth.update(base or {})
+    law = "exponential"
+    load_err = np.ones(len(conditions))
+    if effect == "outside":
+        rng = np.random.default_rng(10_000 + seed)
+        load_err = 1 + rng.uniform(-0.15, 0.15, len(conditions))
+    elif effect is not None:
+        eff = get_effect(effect)
+        if eff.law is not None:
+            law = eff.law
+            truth.update(_law_truth(eff.law, truth))
+        else:
+            truth.update(eff.simulation_values(magnitude))
+    traces = []
+    camera = {n: truth.pop(n) for n in ("exposure", "drift_rate", "e_offset") if n in truth}
+    for i, (k, nb, fp, travel) in enumerate(conditions):
+        run = simulate(coating, spring_constant_N_per_m=k, normal_load_uN=nb * load_err[i], step_frequency_Hz=fp,
+                       travel_um=travel, law=law, params=truth, stick_speed_m_per_s=truth.get("v_stick"))
+        tr = run.sample(noise_nm=noise_nm, seed=1000 * seed + i, name=f"k{k:g}_Nb{nb:g}uN_fp{fp:g}Hz",
+                        exposure_s=camera.get("exposure", 0.0), drift_rate_m_per_s=camera.get("drift_rate", 0.0),
+                        offset_m=camera.get("e_offset", 0.0))
+        if effect == "outside":
+            tr = _with_nominal_load(tr, nb * 1e-6)
+        traces.append(tr)
+    return traces
+
+
+def _law_truth(law: str, truth: dict) -> dict:
+    """Parameters of another aging law with the coating's static friction at similar rests."""
+    if law == "logistic":
+        return {}  # same parameters, another curve shape
+    # logarithmic: μs(t) = μ0 + B·ln(1 + vc·t/dc) through μmin at 0 and μmax at 1 s of rest
+    vc, dc = truth["vc"], truth["dc"]
+    B = (truth["mu_max"] - truth["mu_min"]) / np.log(1 + vc * 1.0 / dc)
+    return dict(mu_0=truth["mu_min"], B=float(B))
+
+
+def _with_nominal_load(trace, nominal_N: float):
+    """The same frames with the metadata's normal load set to the nominal (wrong) value."""
+    import dataclasses
+
+    meta = dict(trace.metadata)
+    meta.pop("block_voltage_V", None)
+    meta["normal_load_uN"] = nominal_N * 1e6
+    return dataclasses.replace(trace, metadata=meta)
