@@ -47,6 +47,8 @@ log = logging.getLogger(__name__)
 LAW_DELTA_AIC = -10.0  # a non-nested law is preferred only with strong support
 SAME_RESIDUALS = 0.9  # cosine of two candidates' residual changes above which they explain the same thing
 TIE_AIC = 10.0
+CONFOUNDED_R2 = 0.99
+WALD_Z = 5.0  # a candidate determined this many stderr off its null is not called confounded
 MIN_CLOSED = 0.3  # a named effect closes at least this share of the held-out gap above the noise
 
 
@@ -78,7 +80,7 @@ class DiagnosisOptions:
     workers: int = 1
     dask: str | None = None
     seed: int = 0
-    max_iter: int = 30
+    max_iter: int = 20
 
     def __post_init__(self):
         ids = tuple(EFFECTS) if self.effects in ("all", None) else tuple(self.effects)
@@ -308,14 +310,19 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
                 break
             chosen["named"] = True
             effects.append(chosen["effect"])
-            remaining = [e for e in remaining if e != chosen["effect"]]
+            # the next round retries only what was significant in this one: adding an
+            # effect explains part of the misfit, it does not create evidence elsewhere
+            remaining = [c["effect"] for c in scored if c.get("significant") and c["effect"] != chosen["effect"]]
             eff = get_effect(chosen["effect"])
             current = dict(values=chosen["values"], free=tuple(chosen["free"]), law=chosen["law"], w=chosen["w"],
                            ev_M=chosen["ev_M"], n_theta=len(chosen["free"]))
             say(f"added {chosen['effect']} ({', '.join(eff.parameters) or eff.law}); trying the rest again")
-            if not remaining or len(effects) >= opts.max_effects:
-                # the final model's held-out gap still comes from the round that chose it
+            if len(effects) >= opts.max_effects:
                 break
+            if not remaining:
+                # nothing else to try: one more evaluation of the model with the effect
+                # added measures its misfit; an empty round does that
+                pass
     finally:
         if closer is not None:
             closer()
@@ -448,7 +455,16 @@ def _score(results, base, opts, n_cand) -> list:
         r2 = max((v.get("r2", 0.0) for v in conf.values()), default=0.0)
         c["r2_with_model"] = float(r2) if np.isfinite(r2) else None
         partners = sorted({p["parameter"] for v in conf.values() for p in v.get("partners", [])})
-        c["confounded_with"] = partners if (np.isfinite(r2) and r2 > 0.99) else []
+        # confounded: the model's parameters can mimic it (R² > 0.99) and, with them free,
+        # it is not determined away from its null (a strongly correlated but well-measured
+        # parameter, like A against μmin, is not confounded)
+        z = _wald(c, eff)
+        c["wald_z"] = z
+        c["confounded_with"] = partners if (np.isfinite(r2) and r2 > CONFOUNDED_R2 and not z >= WALD_Z) else []
+        if dnll < -1e-6 * max(base["chi2"], 1.0):
+            c["significant"] = False
+            c["heldout_gap_after_um"] = c["gap_after_um"] = float("nan")
+            c["worse"] = True
         c["dr"] = c["r"] - r0
         c["estimate_text"] = ", ".join(
             f"{n} = {_fmt(c['estimates'][n])}" for n in (eff.parameters if eff.nested else c.get("free", []))
@@ -456,8 +472,27 @@ def _score(results, base, opts, n_cand) -> list:
         c["named"] = False
         c["closed_fraction"] = _closed_fraction(c)
         c["note"] = c["estimate_text"]
+        if c.get("worse"):
+            c["note"] = "the refit ended worse than the current model (a local solution): no evidence; " + \
+                c["estimate_text"]
         out.append(c)
     return out
+
+
+def _wald(c, eff) -> float:
+    """Largest |value − null|/stderr of the candidate's own parameters (0 if undetermined)."""
+    if not eff.nested:
+        return float("nan")
+    z = 0.0
+    for n in eff.parameters:
+        e = c["estimates"].get(n)
+        if not e or not e.get("stderr"):
+            continue
+        null = eff.null.get(n)
+        if null is None:  # the baseline's own value: not known here, and not needed
+            continue
+        z = max(z, abs(e["value"] - float(null)) / e["stderr"])
+    return float(z)
 
 
 def _fmt(e: dict) -> str:

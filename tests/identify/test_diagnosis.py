@@ -1,0 +1,136 @@
+"""The diagnosis: held-out runs, feature tests, candidate scoring, verdicts, CLI, executors."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import identify
+from identify.cli import main
+from identify.diagnosis import DiagnosisOptions, diagnose
+from identify.features import feature_values, gap
+from identify.heldout import folds_of, heldout_residuals
+from identify.where import misfit_sigma, where
+
+DATA = Path(__file__).resolve().parents[2] / "data" / "FOTAS"
+SMALL = [DATA / f"FOTAS_{n}.csv" for n in ("k2.13_Nb5uN_fp100Hz", "k2.13_Nb5uN_fp30Hz", "k20.3_Nb60uN_fp100Hz",
+                                           "k2.13_Nb10uN_fp100Hz")]
+OPTS = identify.FitOptions(fixed={"v_stick": 1e-5})
+
+
+@pytest.fixture(scope="module")
+def small_fit():
+    return identify.fit(SMALL, options=OPTS)
+
+
+def test_folds():
+    assert folds_of(3) == [[0], [1], [2]]
+    f = folds_of(7, 3, seed=1)
+    assert sorted(sum(f, [])) == list(range(7)) and len(f) == 3
+    with pytest.raises(ValueError, match="folds = 9"):
+        folds_of(4, 9)
+
+
+def test_misfit_sigma_scale():
+    assert misfit_sigma(0.05) == pytest.approx(1.96, abs=1e-2)
+    assert misfit_sigma(1.0) == 0.0
+    assert misfit_sigma(0.0) == 40.0
+
+
+def test_features_of_a_good_fit_sit_at_the_noise(small_fit):
+    prob, w = small_fit.problem, small_fit.w
+    g = gap(feature_values(prob, w, prob.residuals(w)))
+    assert set(g["by_feature"]) >= {"post_slip_level", "slip_length", "static_friction", "stick_slope"}
+    # synthetic data made by the model: the gap is the noise (90 nm frames -> ~20 nm features)
+    assert g["gap_um"] < 1.3 * g["noise_um"]
+
+
+def test_where_finds_nothing_in_data_made_by_the_model(small_fit):
+    ms = where(small_fit.problem, small_fit.w)
+    names = {m.feature for m in ms}
+    assert {"post_slip_level", "post_slip_whiteness", "slip_length", "static_friction", "stick_slope",
+            "time"} <= names
+    assert all(np.isfinite(m.misfit_sigma) for m in ms)
+    assert [m.misfit_sigma for m in ms] == sorted((m.misfit_sigma for m in ms), reverse=True)
+    assert min(m.p_value for m in ms) > 0.01 / len(ms), [(m.feature, m.p_value) for m in ms]
+
+
+def test_linearised_held_out_fit_matches_an_exact_refit(small_fit):
+    """Leaving out run 0: the one-step parameters against a refit of the other runs."""
+    prob, w = small_fit.problem, small_fit.w
+    rho, shifts = heldout_residuals(prob, w, [[3]])
+    th_lin = w[: prob.n_theta] + shifts[0]
+    exact = identify.fit(SMALL[:3], options=identify.FitOptions(fixed={"v_stick": 1e-5}, start=small_fit.values))
+    th_exact = exact.w[: exact.problem.n_theta]
+    # in units of the full fit's standard errors (scaled parameters): a one-step refit
+    # is exact to second order in the left-out run's share of the information
+    se = np.array([small_fit.parameters[n].stderr for n in prob.theta.names]) / np.abs(
+        prob.theta.jacobian_diag(w[: prob.n_theta]))
+    moved = np.abs(th_exact - w[: prob.n_theta]) / se
+    err = np.abs(th_lin - th_exact) / se
+    assert np.all(err < 0.3 * moved + 0.2), (err, moved)
+    # every row of the left-out run is predicted, none of the others
+    assert np.isfinite(rho).sum() > 0
+
+
+def test_diagnosis_of_model_made_data_is_adequate(small_fit, tmp_path):
+    res = diagnose(None, baseline=small_fit, options=DiagnosisOptions(effects=("drift", "step_size")))
+    assert res.verdict == "adequate" and res.effects == []
+    js = res.to_json()
+    for key in ("verdict", "effects", "where", "candidates", "baseline"):
+        assert key in js
+    for c in js["candidates"]:
+        for key in ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "confounded_with", "gap_before_um",
+                    "gap_after_um", "heldout_gap_before_um", "heldout_gap_after_um"):
+            assert key in c, key
+        assert not c["significant"]
+    assert {m["feature"] for m in js["where"]} >= {"post_slip_level", "static_friction"}
+    json.dumps(js)
+    assert "[[Diagnosis]]" in res.report() and "verdict" in res.report()
+    paths = res.save_plots(tmp_path)
+    assert len(paths) == 6 and all(p.stat().st_size > 0 for p in paths)
+
+
+def test_a_confounded_candidate_is_never_named(small_fit):
+    """A load-scale error is absorbed exactly by μmax, μmin and A."""
+    res = diagnose(None, baseline=small_fit, options=DiagnosisOptions(effects=("load_scale",)))
+    c = res.candidates[0]
+    assert c["effect"] == "load_scale" and c["ok"]
+    assert c["r2_with_model"] > 0.99
+    assert set(c["confounded_with"]) & {"mu_max", "mu_min", "A"}
+    assert "load_scale" not in res.effects
+
+
+def test_options_and_cli_bad_input(capsys, tmp_path):
+    with pytest.raises(ValueError, match="unknown effect"):
+        DiagnosisOptions(effects=("nope",))
+    with pytest.raises(ValueError, match="alpha"):
+        DiagnosisOptions(alpha=2)
+    out = tmp_path / "d.json"
+    assert main(["diagnose", str(SMALL[0]), "--effects", "drift,bogus", "--json", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "error: --effects 'bogus'" in err and "Traceback" not in err
+    assert main(["diagnose", str(SMALL[0]), "--folds", "two", "--json", str(out)]) == 2
+    assert "--folds 'two'" in capsys.readouterr().err
+
+
+def test_cli_diagnose_writes_json(tmp_path, capsys):
+    out = tmp_path / "diag.json"
+    code = main(["diagnose", *map(str, SMALL[:3]), "--fix", "v_stick=1e-5", "--effects", "drift",
+                 "--workers", "1", "--json", str(out), "--plots", str(tmp_path / "fig")])
+    assert code == 0
+    js = json.loads(out.read_text())
+    assert js["verdict"] in ("adequate", "unexplained")
+    assert js["candidates"][0]["effect"] == "drift"
+    assert (tmp_path / "fig" / "gap_shrinkage.png").exists()
+
+
+def test_dask_local_cluster(small_fit):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        res = diagnose(None, baseline=small_fit,
+                       options=DiagnosisOptions(effects=("drift", "damping"), dask=cluster.scheduler_address))
+    assert {c["effect"] for c in res.candidates} == {"drift", "damping"}
+    assert all(c["ok"] for c in res.candidates)
