@@ -534,7 +534,8 @@ class Problem:
             # than 2e-4 (the parameters would move by ≪ 0.01 σ). The relative-step test
             # below can wait for ever when finite-difference arc Jacobians are noisy.
             feas0 = float(np.abs(g).max()) if g.size else 0.0
-            if feas0 < 1e-7 and -0.5 * float(grad @ d) < STAT_TOL:
+            stat_tol, feas_tol = getattr(self, "stat_tol", STAT_TOL), getattr(self, "feas_tol", 1e-7)
+            if feas0 < feas_tol and -0.5 * float(grad @ d) < stat_tol:
                 status, success = "Solve_Succeeded", True
                 break
             with np.errstate(divide="ignore", invalid="ignore"):

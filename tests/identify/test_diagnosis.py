@@ -128,7 +128,8 @@ def test_cli_diagnose_writes_json(tmp_path, capsys):
 
 def test_dask_local_cluster(small_fit):
     distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+    # worker processes, as a real cluster has: the tasks and results cross a process boundary
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster:
         res = diagnose(None, baseline=small_fit,
                        options=DiagnosisOptions(effects=("drift", "damping"), dask=cluster.scheduler_address))

@@ -107,3 +107,18 @@ def test_motion_blur_term_matches_averaging_a_staircase():
     # symmetric frames (¼, ¾) cancel in a plateau's mean
     sym = dx * (np.maximum(0, np.array([0.25, 0.75]) + 0.2 - 1) - np.maximum(0, 0.2 - np.array([0.25, 0.75])))
     assert math.isclose(sym.sum(), 0.0, abs_tol=1e-20)
+
+
+def test_withheld_datasets_switch_the_effect_on():
+    from identify.withheld import withheld_dataset
+
+    cond = [(2.13, 5.0, 100.0, 3.0), (20.3, 30.0, 100.0, 3.0)]
+    base = withheld_dataset(None, conditions=cond)
+    drift = withheld_dataset("drift", 1e-7, conditions=cond)
+    assert len(base) == 2 and base[0].name == "k2.13_Nb5uN_fp100Hz"
+    t = drift[0].time_s
+    np.testing.assert_allclose(drift[0].elongation - base[0].elongation, 1e-7 * t, atol=1e-12)
+    out = withheld_dataset("outside", conditions=cond)
+    # the metadata keep the nominal loads; the frames were made with other ones
+    assert [tr.normal_load for tr in out] == pytest.approx([5e-6, 30e-6])
+    assert np.max(np.abs(out[0].elongation - base[0].elongation)) > 1e-8

@@ -1,0 +1,55 @@
+"""The diagnosis on data whose effect the baseline does not have (slow: full diagnoses).
+
+Data: :func:`identify.withheld.withheld_dataset` — the bundled conditions (8 runs, 90 nm,
+two frames per step) with one effect on. The confusion table over every effect and the
+detection limits are in ``tests/bench/bench_diagnosis.py``.
+"""
+
+from pathlib import Path
+
+import pytest
+
+import identify
+from identify.diagnosis import DiagnosisOptions, diagnose
+from identify.withheld import QUICK_CONDITIONS, withheld_dataset
+
+pytestmark = pytest.mark.slow
+
+DATA = Path(__file__).resolve().parents[2] / "data" / "FOTAS"
+BASE = identify.FitOptions(fixed={"v_stick": 1e-5})
+NO_A = identify.FitOptions(fixed={"v_stick": 1e-5, "A": 0.0}, free=("mu_max", "mu_min", "tau"))
+
+
+def _closes(c, share=0.5):
+    return c["heldout_gap_after_um"] < c["heldout_gap_before_um"] and c.get("closed_fraction", 0) >= share
+
+
+def test_the_papers_story_velocity_strengthening():
+    """Bundled FOTAS data (A = 0.015), baseline fixing A = 0: slips too long; A closes it."""
+    res = diagnose([DATA], fit_options=NO_A, options=DiagnosisOptions(workers=2))
+    assert res.effects[:1] == ["velocity_strengthening"]
+    c = next(c for c in res.candidates if c["effect"] == "velocity_strengthening")
+    assert _closes(c)
+    assert c["estimates"]["A"]["value"] == pytest.approx(0.015, rel=0.1)
+    assert res.verdict == "adequate"
+
+
+def test_model_made_data_come_out_adequate():
+    res = diagnose([DATA], fit_options=BASE, options=DiagnosisOptions(workers=2))
+    assert res.verdict == "adequate" and res.effects == []
+
+
+def test_an_effect_outside_the_library_is_unexplained():
+    traces = withheld_dataset("outside", conditions=QUICK_CONDITIONS)
+    res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
+    assert res.verdict == "unexplained"
+
+
+@pytest.mark.parametrize("eid", ["drift", "step_size", "damping", "load_offset"])
+def test_withheld_effect_is_named(eid):
+    traces = withheld_dataset(eid, conditions=QUICK_CONDITIONS, base={"A": 0.015})
+    res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
+    c = next(c for c in res.candidates if c["effect"] == eid)
+    assert eid in res.effects or c["confounded_with"], res.report()
+    if eid in res.effects:
+        assert c["heldout_gap_after_um"] < c["heldout_gap_before_um"]
