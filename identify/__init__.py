@@ -16,6 +16,7 @@ from .reduced import reduced_fit
 from .analyze import AnalyzeResult, analyze
 from .fit import FitError, FitOptions, fit
 from .report import FitResult
+from .diagnosis import DiagnosisOptions, DiagnosisResult, diagnose
 
 __all__ = [
     "LAWS",
@@ -44,4 +45,7 @@ __all__ = [
     "FitOptions",
     "fit",
     "FitResult",
+    "DiagnosisOptions",
+    "DiagnosisResult",
+    "diagnose",
 ]

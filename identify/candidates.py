@@ -159,7 +159,10 @@ def _estimates(prob, w, ev) -> dict:
     for i, n in enumerate(tm.names):
         var = C[i, i]
         sig = math.sqrt(var) if np.isfinite(var) and var >= 0 else float("nan")
-        ci = _scaled_ci(th[i], sig, tm, i) if np.isfinite(sig) else None
+        try:
+            ci = _scaled_ci(th[i], sig, tm, i) if np.isfinite(sig) else None
+        except OverflowError:  # a log-scaled parameter the data do not determine at all
+            ci = None
         out[n] = dict(value=float(vals[i]), stderr=float(abs(d[i]) * sig) if np.isfinite(sig) else None,
                       ci95=list(ci) if ci is not None else None)
     return out

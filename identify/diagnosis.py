@@ -25,11 +25,10 @@ import concurrent.futures as cf
 import json
 import logging
 import math
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable
 
 import numpy as np
 from scipy import stats
@@ -38,7 +37,7 @@ from .candidates import CandidateTask, run_candidate
 from .effects import EFFECTS, get_effect
 from .fit import FitOptions, fit
 from .heldout import folds_of
-from .where import Misfit, where
+from .where import where
 
 __all__ = ["DiagnosisOptions", "DiagnosisResult", "diagnose", "make_executor"]
 
@@ -157,7 +156,6 @@ class DiagnosisResult:
         L.append(f"    effects added      = {', '.join(self.effects) if self.effects else '(none)'}")
         for grp in self.confounded:
             L.append(f"    confounded         = {' | '.join(grp['effects'])}: {grp['why']}")
-        b = self.rounds[0][0] if self.rounds and self.rounds[0] else None
         base = next((c for c in (self.rounds[0] if self.rounds else []) if c.get("effect") is None), None)
         if base:
             L.append(f"    gap (fitted runs)  = {base['gap']['gap_um'] * 1e3:.1f} nm before; noise floor "
@@ -277,6 +275,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
     own, closer = (executor, None) if executor is not None else make_executor(opts.workers, opts.dask)
     threads = 1 if (opts.workers > 1 or opts.dask) else max(int(fopts.threads), 1)
     rounds, effects, confounded, notes = [], [], [], []
+    final_res = None
     n_refits = 0
     try:
         remaining = list(opts.effects)
@@ -296,6 +295,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
                 results.append(res)
             n_refits += len(tasks)
             base = next(r for r in results if r["effect"] is None)
+            final_res = base  # the current model, measured in this round
             if not base.get("ok"):
                 notes.append(f"the current model could not be re-evaluated: {base.get('status')}")
                 rounds.append([base] + skipped)
@@ -309,6 +309,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
             if chosen is None or len(effects) >= opts.max_effects:
                 break
             chosen["named"] = True
+            final_res = chosen  # until the next round measures the model with it
             effects.append(chosen["effect"])
             # the next round retries only what was significant in this one: adding an
             # effect explains part of the misfit, it does not create evidence elsewhere
@@ -328,11 +329,6 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
             closer()
     final_prob, final_w = _rebuild(current, runs, fopts, prob)
     where_final = where(final_prob, final_w) if effects else where0
-    last = rounds[-1] if rounds else []
-    final_res = next((c for c in last if c.get("effect") == (effects[-1] if effects else None)), None) \
-        if effects else next((c for c in last if c.get("effect") is None), None)
-    if effects and final_res is None:
-        final_res = next(c for rnd in rounds for c in rnd if c.get("effect") == effects[-1])
     n_feat = max(len(where_final), 1)
     misfit_left = [m for m in where_final if m.p_value < opts.alpha / n_feat]
     still = [c for c in (rounds[-1] if rounds else []) if c.get("significant") and not c.get("named")

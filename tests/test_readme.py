@@ -50,6 +50,8 @@ def test_readme_script_runs(small_data, tmp_path, monkeypatch):
     assert res.n_runs == 2 and "tau" in res.profiles
     assert (tmp_path / "out" / "k2.13_Nb5.csv").exists()
     assert any((tmp_path / "figures").glob("fit_*.png"))
+    assert ns["diag"].verdict in ("adequate", "unexplained")
+    assert (tmp_path / "diagnosis" / "gap_shrinkage.png").exists()
 
 
 def test_readme_commands_run(small_data, tmp_path, monkeypatch):
@@ -71,3 +73,4 @@ def test_readme_commands_run(small_data, tmp_path, monkeypatch):
     assert (tmp_path / "fit.json").exists() and (tmp_path / "analysis.json").exists()
     assert (tmp_path / "springs.json").exists() and (tmp_path / "regimes.png").exists()
     assert (tmp_path / "plan.json").exists() and (tmp_path / "ranges.json").exists()
+    assert (tmp_path / "diagnosis.json").exists() and (tmp_path / "diagnosis" / "misfit_by_feature.pdf").exists()
