@@ -59,7 +59,9 @@ def case(eid, scale, quick, workers, seed=0):
                 truth_confounded_with=truth.get("confounded_with"), truth_p=truth.get("p_value"),
                 truth_delta_aic=truth.get("delta_aic"),
                 heldout_before_um=truth.get("heldout_gap_before_um"), heldout_after_um=truth.get("heldout_gap_after_um"),
-                final_heldout_um=res.final["heldout_gap_um"], wall_s=time.perf_counter() - t0)
+                final_heldout_um=res.final["heldout_gap_um"], final_gap_um=res.final["gap_um"],
+                noise_um=res.final["noise_um"], where_top=[(m.feature, round(m.misfit_sigma, 1)) for m in res.where[:3]],
+                wall_s=time.perf_counter() - t0)
 
 
 def confusion(args):

@@ -11,7 +11,7 @@ import pytest
 
 import identify
 from identify.diagnosis import DiagnosisOptions, diagnose
-from identify.withheld import QUICK_CONDITIONS, withheld_dataset
+from identify.withheld import CONDITIONS, withheld_dataset
 
 pytestmark = pytest.mark.slow
 
@@ -40,14 +40,14 @@ def test_model_made_data_come_out_adequate():
 
 
 def test_an_effect_outside_the_library_is_unexplained():
-    traces = withheld_dataset("outside", conditions=QUICK_CONDITIONS)
+    traces = withheld_dataset("outside", conditions=CONDITIONS)
     res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
     assert res.verdict == "unexplained"
 
 
 @pytest.mark.parametrize("eid", ["drift", "step_size", "damping", "load_offset"])
 def test_withheld_effect_is_named(eid):
-    traces = withheld_dataset(eid, conditions=QUICK_CONDITIONS, base={"A": 0.015})
+    traces = withheld_dataset(eid, conditions=CONDITIONS, base={"A": 0.015})
     res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
     c = next(c for c in res.candidates if c["effect"] == eid)
     assert eid in res.effects or c["confounded_with"], res.report()
