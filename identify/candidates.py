@@ -44,6 +44,7 @@ class CandidateTask:
     staged: bool = False  # a law candidate starts from the staged start of identify.start
     max_iter: int = 30
     threads: int = 1
+    nulls: dict = field(default_factory=dict)  # the candidate's null values (the current model)
 
 
 def _problem(task: CandidateTask, free: tuple):
@@ -136,7 +137,7 @@ def run_candidate(task: CandidateTask) -> dict:
             effect=task.effect, ok=bool(np.isfinite(chi2)), status=best["status"], iterations=best["iterations"],
             chi2=chi2, n_obs=prob.n_observations(), n_eff=prob.n_effective(), free=list(free), law=task.law,
             values=values, estimates=est, confounding=info, r=r, w=w, ev_M=np.array(prob.ev_M),
-            gap=fitted, heldout=heldout, wall_s=time.perf_counter() - t0, error=None,
+            gap=fitted, heldout=heldout, wall_s=time.perf_counter() - t0, error=None, nulls=dict(task.nulls),
         )
     except Exception as err:  # one failed candidate never sinks the diagnosis
         return dict(effect=task.effect, ok=False, status=f"failed: {type(err).__name__}: {err}", error=str(err),
@@ -188,7 +189,8 @@ def _confounding(prob, w, ev, extra: Sequence[str]) -> dict:
         others = [i for i in range(len(names)) if names[i] not in extra]
         Icc = I[c, c]
         if not others or Icc <= 0:
-            out[n] = dict(r2=0.0 if Icc > 0 else 1.0, partners=[])
+            # no information at all on it: as confounded as it gets (nothing to name)
+            out[n] = dict(r2=0.0 if Icc > 0 else 1.0, partners=[], confounded=Icc <= 0)
             continue
         Ibb = I[np.ix_(others, others)]
         Ibc = I[others, c]
@@ -196,5 +198,7 @@ def _confounding(prob, w, ev, extra: Sequence[str]) -> dict:
         r2 = float(np.clip(Ibc @ coef / Icc, 0.0, 1.0))
         corr = [(names[i], float(I[i, c] / math.sqrt(max(I[i, i] * Icc, 1e-300)))) for i in others]
         corr.sort(key=lambda t: -abs(t[1]))
-        out[n] = dict(r2=r2, partners=[dict(parameter=a, score_correlation=b) for a, b in corr if abs(b) > 0.3][:3])
+        # the top partners always (R² can come from several weak ones)
+        out[n] = dict(r2=r2, partners=[dict(parameter=a, score_correlation=b) for a, b in corr[:3]],
+                      confounded=bool(r2 > 0.99))
     return out

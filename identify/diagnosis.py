@@ -108,6 +108,8 @@ class _InProcess(cf.Executor):
         f: cf.Future = cf.Future()
         try:
             f.set_result(fn(*args, **kwargs))
+        except (KeyboardInterrupt, SystemExit):
+            raise
         except BaseException as err:  # noqa: BLE001 - handed to the caller through the future
             f.set_exception(err)
         return f
@@ -163,7 +165,7 @@ class DiagnosisResult:
         for grp in self.confounded:
             L.append(f"    confounded         = {' | '.join(grp['effects'])}: {grp['why']}")
         base = next((c for c in (self.rounds[0] if self.rounds else []) if c.get("effect") is None), None)
-        if base:
+        if base and base.get("ok"):
             L.append(f"    gap (fitted runs)  = {base['gap']['gap_um'] * 1e3:.1f} nm before; noise floor "
                      f"{base['gap']['noise_um'] * 1e3:.1f} nm")
             L.append(f"    gap (held out)     = {base['heldout'].get('gap_um', float('nan')) * 1e3:.1f} nm before")
@@ -213,15 +215,31 @@ class DiagnosisResult:
         )
 
     def save_json(self, path) -> Path:
+        """Strict JSON: non-finite numbers are written as null."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_json(), indent=2, default=_json_default))
+        path.write_text(json.dumps(_finite(self.to_json()), indent=2, default=_json_default, allow_nan=False))
         return path
 
     def save_plots(self, folder) -> list:
         from .plots_diagnosis import save_diagnosis_plots
 
         return save_diagnosis_plots(self, folder)
+
+
+def _finite(o):
+    """The same structure with NaN and ±inf as None (strict JSON parsers reject them)."""
+    if isinstance(o, dict):
+        return {k: _finite(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _finite(o.tolist())
+    if isinstance(o, (float, np.floating)):
+        return float(o) if math.isfinite(o) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    return o
 
 
 def _json_default(o):
@@ -290,7 +308,12 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
             say(f"round {len(rounds) + 1}: {len(tasks) - 1} candidate refit(s) and the current model, "
                 f"{len(folds)} held-out fold(s) each")
             results = []
-            futs = {own.submit(run_candidate, t): t for t in tasks}
+            futs = {}
+            for t in tasks:
+                try:
+                    futs[own.submit(run_candidate, t)] = t
+                except Exception as err:  # a broken pool or a lost cluster: the candidate fails
+                    results.append(dict(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err)))
             for i, fut in enumerate(cf.as_completed(futs), 1):
                 t = futs[fut]
                 try:
@@ -313,7 +336,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
             if group:
                 confounded.append(group)
             if chosen is None or len(effects) >= opts.max_effects:
-                break
+                break  # (a round of the final model alone also ends here: it has no candidates)
             chosen["named"] = True
             final_res = chosen  # until the next round measures the model with it
             effects.append(chosen["effect"])
@@ -322,14 +345,13 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
             remaining = [c["effect"] for c in scored if c.get("significant") and c["effect"] != chosen["effect"]]
             eff = get_effect(chosen["effect"])
             current = dict(values=chosen["values"], free=tuple(chosen["free"]), law=chosen["law"], w=chosen["w"],
-                           ev_M=chosen["ev_M"], n_theta=len(chosen["free"]))
+                           ev_M=chosen["ev_M"], n_theta=len(chosen["free"]),
+                           bounds={**current.get("bounds", {}), **dict(eff.bounds)})
             say(f"added {chosen['effect']} ({', '.join(eff.parameters) or eff.law}); trying the rest again")
             if len(effects) >= opts.max_effects:
-                break
-            if not remaining:
-                # nothing else to try: one more evaluation of the model with the effect
-                # added measures its misfit; an empty round does that
-                pass
+                remaining = []
+            # with nothing left to try the next round measures the final model alone (its
+            # held-out gap), and the candidates judged for the verdict are scored against it
     finally:
         if closer is not None:
             closer()
@@ -337,12 +359,17 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
     where_final = where(final_prob, final_w) if effects else where0
     n_feat = max(len(where_final), 1)
     misfit_left = [m for m in where_final if m.p_value < opts.alpha / n_feat]
+    # significant candidates that would close a real part of the gap but could not be
+    # named (no convergence, a confounded group): the gap is then not explained. One that
+    # is formally significant but closes little is the encoding's own misfit, not evidence.
     still = [c for c in (rounds[-1] if rounds else []) if c.get("significant") and not c.get("named")
-             and c.get("effect") not in effects and not c.get("confounded_with")]
+             and c.get("effect") not in effects and not c.get("confounded_with")
+             and c.get("closed_fraction", 0.0) >= MIN_CLOSED]
+    grouped = {e for g in confounded if g.get("closes") for e in g["effects"]}
     ratio = (final_res["heldout"]["gap_um"] / final_res["gap"]["noise_um"]
              if final_res and final_res.get("ok") and final_res["gap"]["noise_um"] > 0 else float("nan"))
     within = bool(np.isfinite(ratio) and ratio <= opts.gap_tolerance)
-    if (not misfit_left or within) and not still:
+    if (not misfit_left or within) and not still and not grouped:
         verdict = "adequate"
         if misfit_left:
             notes.append(f"adequate: the held-out gap is {ratio:.2f}× the noise floor (tolerance "
@@ -357,6 +384,9 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
         if still:
             notes.append("significant but not named: " + ", ".join(
                 f"{c['effect']} ({c['note']})" for c in still))
+        if grouped:
+            notes.append("the gap is closed by candidates the data cannot tell apart: "
+                         + "; ".join(" | ".join(g["effects"]) for g in confounded))
     ok = bool(final_res and final_res.get("ok"))
     final = dict(law=current["law"], free=list(current["free"]),
                  values={n: current["values"][n] for n in current["free"]},
@@ -386,7 +416,8 @@ def _tasks(ids, current, runs, fopts, folds, opts, threads, where_hint):
     tail = np.asarray(current["w"])[current["n_theta"]:]
     common = dict(runs=runs, values=current["values"], free=current["free"], w_tail=tail, ev_M=current["ev_M"],
                   options=fopts, folds=folds, max_iter=opts.max_iter, threads=threads)
-    tasks = [CandidateTask(effect=None, law=current["law"], **common)]
+    added = dict(current.get("bounds", {}))  # bounds of the effects already added
+    tasks = [CandidateTask(effect=None, law=current["law"], bounds=added, **common)]
     skipped = []
     for eid in ids:
         eff = get_effect(eid)
@@ -403,14 +434,15 @@ def _tasks(ids, current, runs, fopts, folds, opts, threads, where_hint):
             vals = dict(current["values"])
             tasks.append(CandidateTask(
                 effect=eid, law=eff.law, extra=tuple(n for n in new if n not in old),
-                replace_free=tuple(n for n in old if n not in new), bounds=dict(eff.bounds),
+                replace_free=tuple(n for n in old if n not in new), bounds={**added, **dict(eff.bounds)},
                 starts=[{}], staged=True, **{**common, "values": vals}))
             continue
         nulls = eff.null_values(current["values"])
         starts = _starts(eff, nulls, where_hint)
         vals = {**current["values"], **nulls}
         tasks.append(CandidateTask(effect=eid, law=current["law"], extra=tuple(eff.parameters),
-                                   bounds=dict(eff.bounds), starts=starts, **{**common, "values": vals}))
+                                   bounds={**added, **dict(eff.bounds)}, starts=starts, nulls=nulls,
+                                   **{**common, "values": vals}))
     return tasks, skipped
 
 
@@ -465,6 +497,8 @@ def _score(results, base, opts, n_cand) -> list:
         c["heldout_gap_after_um"] = c["heldout"]["gap_um"]
         conf = c.get("confounding") or {}
         r2 = max((v.get("r2", 0.0) for v in conf.values()), default=0.0)
+        if any(v.get("confounded") for v in conf.values()):
+            r2 = max(r2, 1.0)
         c["r2_with_model"] = float(r2) if np.isfinite(r2) else None
         partners = sorted({p["parameter"] for v in conf.values() for p in v.get("partners", [])})
         # confounded: the model's parameters can mimic it (R² > 0.99) and, with them free,
@@ -472,7 +506,11 @@ def _score(results, base, opts, n_cand) -> list:
         # parameter, like A against μmin, is not confounded)
         z = _wald(c, eff)
         c["wald_z"] = z
-        c["confounded_with"] = partners if (np.isfinite(r2) and r2 > CONFOUNDED_R2 and not z >= WALD_Z) else []
+        if np.isfinite(r2) and r2 > CONFOUNDED_R2 and not z >= WALD_Z:
+            # no partner listed: no information on it at all, so every model parameter is one
+            c["confounded_with"] = partners or [n for n in base.get("free", []) if n not in eff.parameters]
+        else:
+            c["confounded_with"] = []
         if dnll < -1e-6 * max(base["chi2"], 1.0):
             c["significant"] = False
             c["heldout_gap_after_um"] = c["gap_after_um"] = float("nan")
@@ -496,14 +534,12 @@ def _wald(c, eff) -> float:
     if not eff.nested:
         return float("nan")
     z = 0.0
-    for n in eff.parameters:
+    nulls = c.get("nulls") or {}
+    for n in eff.defining:
         e = c["estimates"].get(n)
-        if not e or not e.get("stderr"):
+        if not e or not e.get("stderr") or n not in nulls:
             continue
-        null = eff.null.get(n)
-        if null is None:  # the baseline's own value: not known here, and not needed
-            continue
-        z = max(z, abs(e["value"] - float(null)) / e["stderr"])
+        z = max(z, abs(e["value"] - float(nulls[n])) / e["stderr"])
     return float(z)
 
 
@@ -531,9 +567,17 @@ def _select(scored, base):
     if not names:
         return None, None
     names.sort(key=lambda c: c["delta_aic"])
-    best = names[0]
+    for k, best in enumerate(names):
+        chosen, group = _try(best, names[k + 1:])
+        if chosen is not None or group is not None:
+            return chosen, group
+    return None, None
+
+
+def _try(best, others):
+    """``best`` if it can be named; a confounded group if another explains the same; else None."""
     ties = []
-    for c in names[1:]:
+    for c in others:
         a, b = best["dr"], c["dr"]
         cos = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300))
         if abs(c["delta_aic"] - best["delta_aic"]) < TIE_AIC and cos > SAME_RESIDUALS:
@@ -545,7 +589,8 @@ def _select(scored, base):
             c["note"] = "confounded with " + ", ".join(c["confounded_with"]) + "; " + c["estimate_text"]
         why = ("they change the residuals alike (cosine " + ", ".join(f"{cos:.2f}" for _, cos in ties)
                + ") and fit equally well (|ΔΔAIC| < 10)")
-        return None, dict(effects=grp, why=why)
+        closes = any(c.get("closed_fraction", 0.0) >= MIN_CLOSED for c in [best] + [t for t, _ in ties])
+        return None, dict(effects=grp, why=why, closes=bool(closes))
     if not str(best.get("status", "")).startswith("Solve_Succeeded"):
         best["note"] = f"significant but its refit did not converge ({best['status']}); " + best["estimate_text"]
         return None, None
@@ -569,8 +614,9 @@ def _rebuild(current, runs, fopts, prob0):
 
     if tuple(current["free"]) == tuple(prob0.theta.names) and current["law"] == prob0.law.name:
         return prob0, current["w"]
+    bounds = {**dict(fopts.bounds), **current.get("bounds", {})}
     opts = replace(fopts, free=tuple(current["free"]), law=current["law"], fixed={}, start={},
-                   bounds={n: b for n, b in dict(fopts.bounds).items() if n in current["free"]})
+                   bounds={n: b for n, b in bounds.items() if n in current["free"]})
     p = Problem(runs, Model(get_law(current["law"])), dict(current["values"]), opts)
     if len(current["ev_M"]) == p.E:
         p.ev_M = np.array(current["ev_M"])

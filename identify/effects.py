@@ -65,6 +65,12 @@ class Effect:
         return self.law is None
 
     @property
+    def defining(self) -> tuple:
+        """The parameters whose null defines the baseline (for topography its amplitude:
+        wavelength and phase mean nothing at zero amplitude)."""
+        return self.parameters[:1] if self.id == "topography" else self.parameters
+
+    @property
     def description(self) -> str:
         doc = (type(self).__doc__ or "").strip().splitlines()
         return doc[0] if doc else self.id

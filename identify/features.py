@@ -85,7 +85,7 @@ def feature_values(prob, w: np.ndarray, r: np.ndarray) -> dict:
         if rd.kind == "events" and rd.s_nn > 0:
             n_stick = float(np.mean(np.diff(np.r_[0, rd.trigger_steps]))) if len(rd.trigger_steps) else 1.0
             se = rd.sigma / math.sqrt(rd.s_nn)
-            vals.append(r[k] * se * n_stick)
+            vals.append(-r[k] * se * n_stick)  # the residual is model − data slope
             sigs.append(se * n_stick)
             runs.append(i)
             k += 1

@@ -67,7 +67,13 @@ def heldout_residuals(prob, w: np.ndarray, folds: Sequence, evaluated=None, hold
     Jr = Jr.tocsr()
     Jg = Jg.tocsr()
     lbx, ubx = prob.bounds()
-    fixed = (lbx == ubx) if hold is None else (hold | (lbx == ubx))
+    # variables at an active bound stay there (as in the solver): a parameter at its null on
+    # a bound (A = 0) must not step through it
+    grad = Jr.T @ r
+    active = ((w <= lbx + 1e-12) & (grad > 0)) | ((w >= ubx - 1e-12) & (grad < 0))
+    fixed = (lbx == ubx) | active
+    if hold is not None:
+        fixed = fixed | hold
     n_th = prob.n_theta
     out = np.full_like(r, np.nan)
     shifts = []

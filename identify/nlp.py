@@ -695,13 +695,13 @@ class Problem:
         n_slope = sum(1 for r in self.runs if r.kind == "events" and r.s_nn > 0)
         p = self.P
         t0 = p + n_slope
-        t1 = t0 + self.n_trig + (self.n_phase if self.n_trig else 0)
+        t1 = t0 + self.n_trig + (self.n_phase if self.E else 0)  # phase rows exist with any slip
         return dict(plateaus=(0, p), slopes=(p, t0), triggers=(t0, t1),
                     creep=(t1, t1 + len(self.creep_runs)))
 
     def trigger_runs(self) -> np.ndarray:
         """Run index of each trigger residual (slips, then one phase residual per run)."""
-        if not self.n_trig:
+        if not self.E:
             return np.zeros(0, int)
         phase_runs = sorted(self.phase_of_run, key=self.phase_of_run.get)
         return np.r_[self.ev_run[self.ev_next], np.array(phase_runs, int)]
