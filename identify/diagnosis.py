@@ -14,10 +14,10 @@ it shrinks once that effect is added — on runs the fit did not see (DESIGN.md 
    candidate explains the same residuals as well (nearly parallel residual change and
    |ΔΔAIC| < 10: both are reported as confounded and neither is named), and it shrinks
    the gap on held-out runs. Forward selection adds it and tries the rest again.
-4. Verdict: ``adequate`` when no nameable candidate is left significant and the final
-   model's misfit is consistent with the noise — no feature significant (Bonferroni over
-   the features), or a held-out gap within ``gap_tolerance`` (1.5×) of the noise floor;
-   else ``unexplained`` (a gap no candidate closes, or one only confounded candidates do).
+4. Verdict: ``adequate`` when the final model's held-out gap is within ``gap_tolerance``
+   (1.5×) of the noise floor, or when no feature is significant (Bonferroni over the
+   features) and no nameable candidate is left significant; else ``unexplained`` (a gap
+   no candidate closes, or one only confounded candidates do).
 """
 
 from __future__ import annotations
@@ -369,12 +369,14 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
     ratio = (final_res["heldout"]["gap_um"] / final_res["gap"]["noise_um"]
              if final_res and final_res.get("ok") and final_res["gap"]["noise_um"] > 0 else float("nan"))
     within = bool(np.isfinite(ratio) and ratio <= opts.gap_tolerance)
-    if (not misfit_left or within) and not still and not grouped:
+    # within the tolerance there is no gap left for an unnamed candidate to explain
+    if within or (not misfit_left and not still and not grouped):
         verdict = "adequate"
-        if misfit_left:
+        if misfit_left or still:
             notes.append(f"adequate: the held-out gap is {ratio:.2f}× the noise floor (tolerance "
                          f"{opts.gap_tolerance:g}×, the encoding's own error on model-made data), though "
-                         + ", ".join(f"{m.feature} ({m.misfit_sigma:.1f} σ)" for m in misfit_left)
+                         + ", ".join([f"{m.feature} ({m.misfit_sigma:.1f} σ)" for m in misfit_left]
+                                     + [f"candidate {c['effect']} (p = {c['p_value']:.2g})" for c in still])
                          + " formally exceed the noise")
     else:
         verdict = "unexplained"
