@@ -36,6 +36,7 @@ from scipy import stats
 
 from .candidates import CandidateTask, run_candidate
 from .effects import EFFECTS, get_effect
+from .events import _jsonable  # NaN/inf -> null, numpy -> Python
 from .fit import FitOptions, fit
 from .heldout import folds_of
 from .where import where
@@ -218,28 +219,13 @@ class DiagnosisResult:
         """Strict JSON: non-finite numbers are written as null."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(_finite(self.to_json()), indent=2, default=_json_default, allow_nan=False))
+        path.write_text(json.dumps(_jsonable(self.to_json()), indent=2, default=_json_default, allow_nan=False))
         return path
 
     def save_plots(self, folder) -> list:
         from .plots_diagnosis import save_diagnosis_plots
 
         return save_diagnosis_plots(self, folder)
-
-
-def _finite(o):
-    """The same structure with NaN and ±inf as None (strict JSON parsers reject them)."""
-    if isinstance(o, dict):
-        return {k: _finite(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_finite(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _finite(o.tolist())
-    if isinstance(o, (float, np.floating)):
-        return float(o) if math.isfinite(o) else None
-    if isinstance(o, np.integer):
-        return int(o)
-    return o
 
 
 def _json_default(o):
