@@ -19,6 +19,7 @@ import numpy as np
 
 from .laws import get_law
 from .model import Model
+from .missed import missed_slips
 from .nlp import Problem
 from .params import parameter_set, spec
 
@@ -280,6 +281,57 @@ def _run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray | Non
     )
 
 
+def _carry(old_steps, values, new_steps):
+    """Per-slip values (e.g. moving times) carried to a new trigger list: a slip keeps
+    its value by position when only triggers moved, an inserted one takes its nearest
+    old neighbour's."""
+    if values is None:
+        return None
+    old_steps, values = np.asarray(old_steps), np.asarray(values)
+    if len(new_steps) == len(old_steps):
+        return values
+    near = np.clip(np.searchsorted(old_steps, new_steps), 0, len(old_steps) - 1)
+    return values[near]
+
+
+def _carry_horizons(old, new) -> np.ndarray:
+    """Arc horizons (steps) of the previous problem carried to the new one, never past
+    the next trigger."""
+    M = np.ones(new.E, int)
+    for ri in np.unique(new.ev_run):
+        sel_new, sel_old = new.ev_run == ri, old.ev_run == ri
+        M[sel_new] = _carry(old.ev_step[sel_old], old.ev_M[sel_old], new.ev_step[sel_new])
+    return np.maximum(np.minimum(M, new.ev_gap), 1)
+
+
+def _carry_solution(old, new, w: np.ndarray) -> np.ndarray:
+    """The previous solution as a start for the new mode sequence: parameters, offsets
+    and phases as they were; each plateau the position of the old plateau it lies in,
+    an inserted plateau its position in the frames."""
+    if new.n_w == old.n_w:
+        return w.copy()
+    v = new.initial_w(dict(zip(old.theta.names, old.theta.from_scaled(w[: old.n_theta]))))
+    v[: old.i_x] = w[: old.i_x]
+    v[new.i_phi : new.n_w] = w[old.i_phi : old.n_w]
+    x_old = w[old.i_x : old.i_x + old.P]
+    p_new = p_old = 0
+    for ri, r in enumerate(new.runs):
+        if r.kind != "events":
+            continue
+        t_old, t_new = old.runs[ri].trigger_steps, r.trigger_steps
+        # plateau j of the new run starts after trigger j − 1 (the first at the start)
+        for j in range(len(t_new) + 1):
+            if j == 0:
+                v[new.i_x + p_new + j] = x_old[p_old]
+                continue
+            k = int(np.searchsorted(t_old, t_new[j - 1], side="right"))
+            if k >= 1 and t_old[k - 1] == t_new[j - 1]:
+                v[new.i_x + p_new + j] = x_old[p_old + k]
+        p_new += len(t_new) + 1
+        p_old += len(t_old) + 1
+    return v
+
+
 # ----------------------------------------------------------------------------- driver
 def _start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict, str]:
     """Start from the reduced analysis where it can say something (DESIGN.md §2)."""
@@ -384,11 +436,11 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
                        else "no run could be used")
     say(f"{len(run_data)} run(s) used, {len(excluded)} left out; building the NLP")
     prob = Problem(run_data, model, values, opts).build()
+    start_given = dict(start)
     if opts.staged_start:
         from .start import staged_start
 
         say("start: aging from the triggers, then the slip parameters from slip lengths")
-        start_given = dict(start)
         start, stages = staged_start(prob, start, seed=opts.seed or 0)
         start_source += " -> staged (triggers, slip lengths)"
         log.info("staged start %s from %s", start, start_given)
@@ -413,32 +465,51 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         raise FitError("every solver start failed: " + "; ".join(r["status"] for r in results))
     # the mode sequence: move triggers the model places a step or two off, and leave
     # out the frames taken while the block moved; re-solve until nothing moves
-    refined = 0
-    for round_ in range(5):
+    # (a slip the detection missed is inserted where the model predicts it and the
+    # frames show it, once no trigger moves any more)
+    refined = inserted = 0
+    for round_ in range(6):
         changes, n_moved = prob.refine_triggers(best["w"])
-        if round_ > 0 and n_moved == 0:
+        n_added = 0
+        if n_moved == 0:
+            changes, n_added = missed_slips(prob, best["w"])
+        if round_ > 0 and n_moved + n_added == 0:
             break
         refined += n_moved
+        inserted += n_added
         moving = prob.moving_times(best["w"])
         new_runs = []
         for i, r in enumerate(prob.runs):
             if r.kind != "events":
                 new_runs.append(r)
                 continue
-            new_runs.append(_run_data(r.events, triggers=changes.get(i, r.trigger_steps), moving_s=moving.get(i)))
-        say(f"mode sequence: {n_moved} slip trigger(s) moved; re-solving")
-        M_prev, counter = prob.ev_M.copy(), prob.counter
+            steps = changes.get(i, r.trigger_steps)
+            new_runs.append(_run_data(r.events, triggers=steps,
+                                      moving_s=_carry(r.trigger_steps, moving.get(i), steps)))
+        say(f"mode sequence: {n_moved} slip trigger(s) moved, {n_added} missed slip(s) inserted; re-solving")
+        M_prev, counter = prob, prob.counter
         prob = Problem(new_runs, model, values, opts)
-        prob.ev_M = M_prev
+        prob.ev_M = _carry_horizons(M_prev, prob)
         prob.counter = counter  # the timing report covers every solve, not just the last
         prob.build()
-        w_next = best["w"].copy()
+        w_next = _carry_solution(M_prev, prob, best["w"])
         prob.size_arcs(w_next)
         sol = prob.solve(w_next)
+        if n_added and opts.staged_start:
+            # a missed slip bends the first solution (and the staged start made from
+            # the merged plateaus) far off: start afresh from the repaired sequence too
+            from .start import staged_start
+
+            fresh, _ = staged_start(prob, start_given, seed=opts.seed or 0)
+            other = prob.solve(prob.initial_w(fresh))
+            both_it, both_s = sol["iterations"] + other["iterations"], sol["wall_s"] + other["wall_s"]
+            sol = min((sol, other), key=lambda r: r["f"])
+            sol["iterations"], sol["wall_s"] = both_it, both_s
         sol["iterations"] += best["iterations"]
         sol["wall_s"] += best["wall_s"]
         best = sol
     best["triggers_moved"] = refined
+    best["slips_inserted"] = inserted
     say("covariance")
     result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,
                           time.perf_counter() - wall0)

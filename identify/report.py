@@ -117,7 +117,8 @@ class FitResult:
             f"constraints, {self.nlp_size['residuals']} residuals",
             f"    solver             = {s['method']}: {s['status']} after {s['iterations']} "
             f"iterations, {s['wall_time_s']:.2f} s",
-            f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved by the fit",
+            f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved, "
+            f"{s.get('slips_inserted', 0)} missed slip(s) inserted by the fit",
             f"    chi-square         = {self.chi2:.6g}",
             f"    reduced chi-square = {self.redchi:.6g}  (dof = {self.dof})",
             f"    Akaike info crit   = {self.aic:.6g}",
@@ -287,6 +288,7 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
         nlp_size=dict(variables=prob.n_w, constraints=prob.n_g, residuals=int(len(r))),
         solver=dict(status=best["status"], success=best["success"], iterations=best["iterations"],
                     wall_time_s=float(wall_s), triggers_moved=int(best.get("triggers_moved", 0)),
+                    slips_inserted=int(best.get("slips_inserted", 0)),
                     method=("Gauss-Newton SQP (Gauss-Newton Hessian, l1-merit line search)"
                             if prob.opts.solver == "gauss-newton" else "Ipopt (Gauss-Newton Hessian)")),
         multistart=dict(starts=len(results), best_found=found, costs=[float(x["f"]) for x in results]),
