@@ -191,6 +191,9 @@ def _add_experiment(sub) -> None:
                    help="simulate + identify the plan and the reference N times each (slow)")
     p.add_argument("--seed", type=int, default=0, help="seed of the verification noise")
     p.add_argument("--workers", type=int, default=1, help="processes for the verification fits")
+    p.add_argument("--verify-record", type=Path, default=None, metavar="FILE",
+                   help="JSON lines, one per finished verification fit; a rerun resumes from it "
+                        "(default: OUT.verify.jsonl beside --json OUT)")
     p.add_argument("--json", type=Path, default=None, metavar="OUT")
     p.add_argument("--plot", type=Path, default=None, metavar="FILE")
     p.set_defaults(func=_cmd_experiment)
@@ -223,7 +226,10 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     if args.verify:
         if args.json is not None:  # the design is saved before the long verification
             args.json.write_text(json.dumps(plan.to_json(), indent=2) + "\n", encoding="utf-8")
-        verify_plans(plan, args.verify, seed=args.seed, workers=args.workers, progress=say)
+        record = args.verify_record
+        if record is None and args.json is not None:
+            record = args.json.with_suffix(".verify.jsonl")
+        verify_plans(plan, args.verify, seed=args.seed, workers=args.workers, progress=say, record=record)
     print(plan.report())
     _write_outputs(args, plan)
     return 0

@@ -213,10 +213,16 @@ class ExperimentPlan:
                      f"(reference / plan = {gr / gp:.2f})")
         if self.monte_carlo:
             mc = self.monte_carlo
-            lines.append(f"  Monte Carlo ({mc['repeats']} seeded repeats each), measured spread:")
+            lines.append(f"  Monte Carlo ({mc['repeats']} seeded repeats each; failed fits: plan "
+                         f"{mc['plan_failed']}, reference {mc['reference_failed']}), measured spread "
+                         "(sd / robust 1.4826·MAD) against the predicted stderr:")
             for n in self.free:
-                lines.append(f"    {n:10} plan {mc['plan_stderr'][n]:.4g} (predicted {self.predicted_stderr[n]:.4g}),"
-                             f" reference {mc['reference_stderr'][n]:.4g} (predicted {self.reference_stderr[n]:.4g})")
+                lines.append(
+                    f"    {n:10} plan {mc['plan_stderr'][n]:.3g} / {mc['plan_robust_stderr'][n]:.3g} "
+                    f"(predicted {self.predicted_stderr[n]:.3g}, x{mc['plan_measured_over_predicted'][n]:.2f}); "
+                    f"reference {mc['reference_stderr'][n]:.3g} / {mc['reference_robust_stderr'][n]:.3g} "
+                    f"(predicted {self.reference_stderr[n]:.3g}, x{mc['reference_measured_over_predicted'][n]:.2f})")
+            lines.append(f"  measured geometric-mean RMS error, reference / plan = {mc['geometric_mean_ratio']:.2f}")
         unused = [(c, s) for c, s in self.candidates if not s.get("used")]
         if unused:
             lines.append("  candidates without information:")
@@ -414,37 +420,100 @@ def _fit_plan(plan, coating, free, noise_nm, stick, seed):
     return {n: res[n].value for n in free}
 
 
+def _spread(values: np.ndarray) -> tuple[float, float]:
+    """Standard deviation and robust spread (1.4826 × MAD) of repeated estimates."""
+    if values.size < 2:
+        return float("nan"), float("nan")
+    return (float(np.std(values, ddof=1)),
+            float(1.482602218505602 * np.median(np.abs(values - np.median(values)))))
+
+
+def _load_record(path: Path | None, labels: dict) -> dict:
+    """Finished fits of an earlier verification of the same plans (key, seed) -> row."""
+    done: dict = {}
+    if path is None or not Path(path).exists():
+        return done
+    for line in Path(path).read_text(encoding="utf-8").splitlines():
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # a line cut by a stop
+        if row.get("runs") == labels.get(row.get("key")):
+            done[(row["key"], row["seed"])] = row
+    return done
+
+
 def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm: float = 90.0,
                  stick_speed_m_per_s: float = STICK_SPEED, workers: int = 1,
-                 progress: Callable[[str], None] | None = None) -> dict:
+                 progress: Callable[[str], None] | None = None, record: str | Path | None = None) -> dict:
     """Simulate and identify the plan and the reference ``repeats`` times each (seeded
-    noise, repeat r uses seed + r for both plans); the measured spread (standard
-    deviation) of the estimates per parameter. Fits run in ``workers`` processes."""
+    noise, repeat r uses seed + r for both plans); the measured spread of the estimates
+    per parameter. Fits run in ``workers`` processes.
+
+    ``record``: a JSON-lines file that gets one line per finished fit, as it finishes;
+    fits already in it (same plan, same seed) are not run again, so a stopped
+    verification resumes where it stopped.
+
+    Returns (and stores as ``plan.monte_carlo``): ``plan_stderr`` and
+    ``reference_stderr`` (standard deviation of the estimates), ``*_robust_stderr``
+    (1.4826 × MAD: one fit stuck in a wrong solution does not set it), ``*_mean``,
+    ``*_rms_error`` (against the nominal values the data were made with),
+    ``*_measured_over_predicted`` (robust spread / predicted standard error),
+    ``*_failed``, ``geometric_mean_ratio`` (reference / plan, of the RMS errors),
+    ``*_estimates`` (per fit) and ``repeats``.
+    """
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     say = progress or (lambda msg: None)
-    out = {}
-    jobs = [(key, r) for key in ("plan_stderr", "reference_stderr") for r in range(repeats)]
     runs_of = {"plan_stderr": plan.plan, "reference_stderr": plan.reference_plan}
-    est: dict = {"plan_stderr": [], "reference_stderr": []}
-    failed: dict = {"plan_stderr": 0, "reference_stderr": 0}
-    with ProcessPoolExecutor(max_workers=max(int(workers), 1)) as ex:
-        futs = {ex.submit(_fit_plan, runs_of[key], plan.coating, plan.free, noise_nm, stick_speed_m_per_s,
-                          seed + r): (key, r) for key, r in jobs}
-        for i, f in enumerate(as_completed(futs), 1):
-            key, r = futs[f]
-            try:
-                est[key].append(f.result())
-            except Exception as err:  # a failed repeat is counted, not fatal
-                failed[key] += 1
-                say(f"  {key.split('_')[0]} repeat {r + 1} failed: {err}")
-            say(f"verification: {i}/{len(jobs)} fits done")
-    for key in est:
-        out[key] = {n: float(np.std([e[n] for e in est[key]], ddof=1)) if len(est[key]) > 1 else float("nan")
-                    for n in plan.free}
-        out[key.replace("stderr", "mean")] = {n: float(np.mean([e[n] for e in est[key]])) if est[key] else float("nan")
-                                             for n in plan.free}
-        out[key.replace("stderr", "failed")] = failed[key]
+    labels = {k: [c.label() for c in v] for k, v in runs_of.items()}
+    done = _load_record(record, labels)
+    if done:
+        say(f"verification: {len(done)} fit(s) taken from {record}")
+    jobs = [(key, r) for key in ("plan_stderr", "reference_stderr") for r in range(repeats)
+            if (key, seed + r) not in done]
+    rows = {k: v for k, v in done.items() if 0 <= k[1] - seed < repeats}
+    fh = open(record, "a", encoding="utf-8") if record is not None else None
+    try:
+        with ProcessPoolExecutor(max_workers=max(int(workers), 1)) as ex:
+            futs = {ex.submit(_fit_plan, runs_of[key], plan.coating, plan.free, noise_nm, stick_speed_m_per_s,
+                              seed + r): (key, r) for key, r in jobs}
+            for i, f in enumerate(as_completed(futs), 1):
+                key, r = futs[f]
+                try:
+                    row = dict(key=key, seed=seed + r, runs=labels[key], estimates=f.result())
+                except Exception as err:  # a failed repeat is counted, not fatal
+                    row = dict(key=key, seed=seed + r, runs=labels[key], error=f"{type(err).__name__}: {err}")
+                    say(f"  {key.split('_')[0]} repeat {r + 1} failed: {err}")
+                rows[(key, seed + r)] = row
+                if fh is not None:
+                    fh.write(json.dumps(row) + "\n")
+                    fh.flush()
+                say(f"verification: {i}/{len(jobs)} fits done")
+    finally:
+        if fh is not None:
+            fh.close()
+    out: dict = {}
+    for key, predicted in (("plan_stderr", plan.predicted_stderr), ("reference_stderr", plan.reference_stderr)):
+        ok = [row["estimates"] for (k, _), row in sorted(rows.items()) if k == key and "estimates" in row]
+        pre = key.replace("_stderr", "")
+        sd, robust, mean, rms, ratio = {}, {}, {}, {}, {}
+        for n in plan.free:
+            v = np.array([e[n] for e in ok], float)
+            sd[n], robust[n] = _spread(v)
+            mean[n] = float(v.mean()) if v.size else float("nan")
+            rms[n] = float(np.sqrt(np.mean((v - plan.nominal[n]) ** 2))) if v.size else float("nan")
+            ratio[n] = robust[n] / predicted[n] if predicted[n] else float("nan")
+        out[key] = sd
+        out[f"{pre}_robust_stderr"] = robust
+        out[f"{pre}_mean"] = mean
+        out[f"{pre}_rms_error"] = rms
+        out[f"{pre}_measured_over_predicted"] = ratio
+        out[f"{pre}_failed"] = sum(1 for (k, _), row in rows.items() if k == key and "error" in row)
+        out[f"{pre}_estimates"] = ok
+    g_plan = plan._gmean(out["plan_rms_error"], plan.nominal)
+    g_ref = plan._gmean(out["reference_rms_error"], plan.nominal)
+    out["geometric_mean_ratio"] = g_ref / g_plan if g_plan and np.isfinite(g_plan) else float("nan")
     out["repeats"] = repeats
     out["seed"] = seed
     plan.monte_carlo = out

@@ -148,10 +148,20 @@ def test_cli_writes_plan(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_verification_measures_spread():
+def test_verification_measures_spread(tmp_path, monkeypatch):
+    from design import experiment
+
     plan = design_experiment(2, candidates=SMALL[:2], reference=SMALL[:2][::-1])
-    mc = __import__("design.experiment", fromlist=["verify_plans"]).verify_plans(plan, 3, seed=1, workers=2)
+    record = tmp_path / "mc.jsonl"
+    mc = experiment.verify_plans(plan, 3, seed=1, workers=2, record=record)
     assert mc["repeats"] == 3 and mc["plan_failed"] == 0
     for n in plan.free:
         assert np.isfinite(mc["plan_stderr"][n]) and mc["plan_stderr"][n] > 0
+        assert np.isfinite(mc["plan_robust_stderr"][n])
+    assert len(mc["plan_estimates"]) == 3 and np.isfinite(mc["geometric_mean_ratio"])
     assert "Monte Carlo" in plan.report()
+    assert len(record.read_text().splitlines()) == 6
+    # a rerun takes every fit from the record: no fit is run again
+    monkeypatch.setattr(experiment, "_fit_plan", lambda *a: (_ for _ in ()).throw(AssertionError("refit")))
+    again = experiment.verify_plans(plan, 3, seed=1, workers=1, record=record)
+    assert again["plan_stderr"] == mc["plan_stderr"]
