@@ -15,8 +15,9 @@ on disk (:mod:`identify.compiled`):
     a = [x0 (µm), e0 (µm), z0, model parameters..., k, Nb, fp, M] (one column per arc),
     y = [slip length (µm), state at the horizon, stop time after the trigger (ms),
     peak speed (m/s), still moving at the horizon (1/0)].
-Derivatives come from central differences of the compiled arc, for the inputs that vary
-in the fit only, all perturbations of all arcs in one batched call. CasADi's Rosenbrock
+Derivatives come from finite differences of the compiled arc (forward while the solver
+iterates, central for the covariance), for the inputs that vary in the fit only, all
+perturbations of all arcs in one batched call. CasADi's Rosenbrock
 sensitivities (forward and adjoint alike) are exact for fast slips but were measured
 wrong by 1-280 % where a slow, creep-like slip ends at a stop event (they differentiate
 the discrete scheme; the computed arc is smooth there: differences with steps of 1e-4
@@ -122,28 +123,41 @@ class ArcFunctions:
             return out
 
     def evaluate_jacobian(self, A: np.ndarray, threads: int = 1, rows=None,
-                          rel_step: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
-        """Outputs and d(slip, state at horizon)/d(inputs) by central differences.
+                          rel_step: float | None = None, scheme: str = "central") -> tuple[np.ndarray, np.ndarray]:
+        """Outputs and d(slip, state at horizon)/d(inputs) by finite differences.
 
-        ``rows``: the inputs that vary (others get zero columns). Returns y (5 × n) and
-        J (2 × n_in·n), arc e's block in columns e·n_in … (e+1)·n_in − 1.
+        ``rows``: the inputs that vary (others get zero columns). ``scheme``:
+        ``central`` (two integrations per input, default step 1e-6 relative) or
+        ``forward`` (one, step 1e-6): measured against central differences on 90 arcs,
+        median relative error 1e-5 to 1e-7 per input, 95th percentile ≤ 6e-3 — enough
+        for Gauss–Newton steps at 1.6× less integration, not for the covariance.
+        Returns y (5 × n) and J (2 × n_in·n), arc e's block in columns
+        e·n_in … (e+1)·n_in − 1.
         """
+        if scheme not in ("central", "forward"):
+            raise ValueError(f"scheme = {scheme!r}: choose 'central' or 'forward'")
         n = A.shape[1]
         rows = list(range(self.n_in)) if rows is None else list(rows)
+        rel_step = 1e-6 if rel_step is None else rel_step
         h = rel_step * np.maximum(np.abs(A[rows]), self.typical[rows, None])  # (r, n)
+        signs = (1.0, -1.0) if scheme == "central" else (1.0,)
         blocks = [A]
         for k, i in enumerate(rows):
-            for sgn in (1.0, -1.0):
+            for sgn in signs:
                 B = A.copy()
                 B[i] += sgn * h[k]
                 blocks.append(B)
         Y = self.evaluate(np.hstack(blocks), threads)
         y = Y[:, :n]
         J = np.zeros((N_ARC_JAC_OUTPUTS, self.n_in, n))
+        m = len(signs)
         for k, i in enumerate(rows):
-            yp = Y[:N_ARC_JAC_OUTPUTS, (1 + 2 * k) * n:(2 + 2 * k) * n]
-            ym = Y[:N_ARC_JAC_OUTPUTS, (2 + 2 * k) * n:(3 + 2 * k) * n]
-            J[:, i, :] = (yp - ym) / (2 * h[k])
+            yp = Y[:N_ARC_JAC_OUTPUTS, (1 + m * k) * n:(2 + m * k) * n]
+            if scheme == "central":
+                ym = Y[:N_ARC_JAC_OUTPUTS, (2 + m * k) * n:(3 + m * k) * n]
+                J[:, i, :] = (yp - ym) / (2 * h[k])
+            else:
+                J[:, i, :] = (yp - y[:N_ARC_JAC_OUTPUTS]) / h[k]
         return y, J.transpose(0, 2, 1).reshape(N_ARC_JAC_OUTPUTS, n * self.n_in)
 
 

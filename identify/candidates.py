@@ -117,7 +117,7 @@ def run_candidate(task: CandidateTask) -> dict:
             raise ValueError("the model cannot be evaluated at any start (an arc or the trigger encoding "
                              "is not finite there)")
         w = best["w"]
-        ev = prob.evaluate(w, jac=True)
+        ev = prob.central_differences().evaluate(w, jac=True)
         r = ev[0]
         chi2 = float(r @ r) + prob.chi2_constant()
         est = _estimates(prob, w, ev)

@@ -60,6 +60,10 @@ class FitOptions:
         Largest number of puller steps one slip arc may span.
     arc_reltol, arc_abstol : float
         Tolerances of the arcs (scaled units).
+    arc_jacobian : {"forward", "central"}
+        Finite differences of the arcs while the solver iterates (``forward``, default:
+        one integration per input instead of two); the covariance always uses central
+        differences.
     solver : {"gauss-newton", "ipopt"}
         ``gauss-newton`` (default): constrained Gauss–Newton SQP with an ℓ1-merit line
         search (Bock's method for multiple shooting). ``ipopt``: Ipopt with the same
@@ -93,6 +97,7 @@ class FitOptions:
     max_arc_steps: int = 64
     arc_reltol: float = 1e-6
     arc_abstol: float = 1e-8
+    arc_jacobian: str = "forward"
     solver: str = "gauss-newton"
     staged_start: bool = True
     max_iter: int = 100
@@ -136,6 +141,8 @@ class FitOptions:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: must be a positive integer")
         if self.multistart < 0:
             raise ValueError(f"multistart = {self.multistart!r}: must be >= 0")
+        if self.arc_jacobian not in ("forward", "central"):
+            raise ValueError(f"arc_jacobian = {self.arc_jacobian!r}: choose 'forward' or 'central'")
         if self.covariance not in ("robust", "model"):
             raise ValueError(f"covariance = {self.covariance!r}: choose 'robust' or 'model'")
         if self.solver not in ("gauss-newton", "ipopt"):

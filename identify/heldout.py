@@ -60,7 +60,7 @@ def heldout_residuals(prob, w: np.ndarray, folds: Sequence, evaluated=None, hold
     Returns (r_heldout, theta_shift): the residual vector in which each run's rows come
     from the fit without its fold, and the scaled parameter shift per fold.
     """
-    r, g, Jr, Jg = evaluated if evaluated is not None else prob.evaluate(w, jac=True)
+    r, g, Jr, Jg = evaluated if evaluated is not None else prob.central_differences().evaluate(w, jac=True)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jr.data)) and np.all(np.isfinite(Jg.data))):
         raise ValueError("the residuals or their Jacobian are not finite at the solution")
     lay = Layout.of(prob)
