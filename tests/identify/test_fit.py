@@ -71,6 +71,28 @@ def test_nlp_jacobians_match_central_differences(small_traces):
         assert np.abs(Jg[:, j] - fd_g).max() <= 2e-3 * scale_g, f"constraint Jacobian column {j}"
 
 
+def test_arc_difference_schemes_agree(small_traces):
+    """Forward differences (the iterations) and the covariance's secant central
+    differences against central differences at 1e-6, arc by arc, input by input."""
+    from identify.nlp import COVARIANCE_REL_STEP
+
+    runs, _, coating = prepare_runs(small_traces)
+    model = Model(get_law("exponential"))
+    values = dict(model.defaults(parameter_set(coating, {"v_stick": V_STICK})))
+    prob = Problem([_run_data(ev) for ev in runs], model, values, FitOptions(fixed={"v_stick": V_STICK})).build()
+    w = prob.initial_w({"mu_max": 0.78, "mu_min": 0.49, "tau": 0.07, "A": 0.015})
+    A = np.array(prob._arc_inputs(w))
+    rows = prob._cb_jac.rows
+    n = A.shape[1]
+    ref = prob.arcs.evaluate_jacobian(A, rows=rows)[1].reshape(2, n, -1)[:, :, rows]
+    for kw, tol in ((dict(scheme="forward"), 1e-3), (dict(rel_step=COVARIANCE_REL_STEP), 1e-4)):
+        J = prob.arcs.evaluate_jacobian(A, rows=rows, **kw)[1].reshape(2, n, -1)[:, :, rows]
+        rel = np.abs(J - ref) / (np.abs(ref) + 1e-3 * np.abs(ref).max(axis=(0, 1)))
+        assert np.median(rel) < tol, kw
+    with pytest.raises(ValueError, match="scheme"):
+        prob.arcs.evaluate_jacobian(A, rows=rows, scheme="backward")
+
+
 # ----------------------------------------------------------------------------- the result
 def test_small_fit_converges_near_truth(small_fit):
     res = small_fit
@@ -139,6 +161,7 @@ def test_nothing_usable_raises(tmp_path):
     (dict(free=("mu_max",), fixed={"mu_max": 0.7}), "both free and fixed"),
     (dict(bounds={"tau": (0.1, 0.01)}), "lower < upper"),
     (dict(solver="bfgs"), "solver"),
+    (dict(arc_jacobian="backward"), "arc_jacobian"),
     (dict(law="power"), "power"),
 ])
 def test_bad_options(kwargs, match):
