@@ -428,8 +428,19 @@ def _spread(values: np.ndarray) -> tuple[float, float]:
             float(1.482602218505602 * np.median(np.abs(values - np.median(values)))))
 
 
-def _load_record(path: Path | None, labels: dict) -> dict:
-    """Finished fits of an earlier verification of the same plans (key, seed) -> row."""
+def _record_context(plan: ExperimentPlan, noise_nm: float, stick_speed_m_per_s: float) -> dict:
+    """Per plan key, everything its fits depend on: a record made under other conditions
+    is not reused (JSON round-tripped, to compare equal with what a record holds)."""
+    runs_of = {"plan_stderr": plan.plan, "reference_stderr": plan.reference_plan}
+    return {k: json.loads(json.dumps(dict(runs=[c.to_json() for c in v], coating=plan.coating,
+                                          free=list(plan.free), noise_nm=noise_nm,
+                                          stick_speed_m_per_s=stick_speed_m_per_s)))
+            for k, v in runs_of.items()}
+
+
+def _load_record(path: Path | None, context: dict) -> dict:
+    """Finished fits of an earlier verification of the same plans under the same
+    conditions: (key, seed) -> row. Failed fits are not taken (a rerun retries them)."""
     done: dict = {}
     if path is None or not Path(path).exists():
         return done
@@ -438,7 +449,8 @@ def _load_record(path: Path | None, labels: dict) -> dict:
             row = json.loads(line)
         except json.JSONDecodeError:
             continue  # a line cut by a stop
-        if row.get("runs") == labels.get(row.get("key")):
+        if (isinstance(row, dict) and "estimates" in row and row.get("key") in context
+                and row.get("context") == context[row["key"]] and isinstance(row.get("seed"), int)):
             done[(row["key"], row["seed"])] = row
     return done
 
@@ -466,14 +478,23 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
 
     say = progress or (lambda msg: None)
     runs_of = {"plan_stderr": plan.plan, "reference_stderr": plan.reference_plan}
-    labels = {k: [c.label() for c in v] for k, v in runs_of.items()}
-    done = _load_record(record, labels)
+    context = _record_context(plan, noise_nm, stick_speed_m_per_s)
+    done = _load_record(record, context)
     if done:
         say(f"verification: {len(done)} fit(s) taken from {record}")
     jobs = [(key, r) for key in ("plan_stderr", "reference_stderr") for r in range(repeats)
             if (key, seed + r) not in done]
     rows = {k: v for k, v in done.items() if 0 <= k[1] - seed < repeats}
-    fh = open(record, "a", encoding="utf-8") if record is not None else None
+    fh = None
+    if record is not None:
+        cut = False
+        if Path(record).exists() and Path(record).stat().st_size:
+            with open(record, "rb") as raw:  # a line cut by a stop must not swallow the next record
+                raw.seek(-1, 2)
+                cut = raw.read(1) != b"\n"
+        fh = open(record, "a", encoding="utf-8")
+        if cut:
+            fh.write("\n")
     try:
         with ProcessPoolExecutor(max_workers=max(int(workers), 1)) as ex:
             futs = {ex.submit(_fit_plan, runs_of[key], plan.coating, plan.free, noise_nm, stick_speed_m_per_s,
@@ -481,9 +502,9 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
             for i, f in enumerate(as_completed(futs), 1):
                 key, r = futs[f]
                 try:
-                    row = dict(key=key, seed=seed + r, runs=labels[key], estimates=f.result())
-                except Exception as err:  # a failed repeat is counted, not fatal
-                    row = dict(key=key, seed=seed + r, runs=labels[key], error=f"{type(err).__name__}: {err}")
+                    row = dict(key=key, seed=seed + r, context=context[key], estimates=f.result())
+                except Exception as err:  # a failed repeat is counted, not fatal (and retried on a rerun)
+                    row = dict(key=key, seed=seed + r, context=context[key], error=f"{type(err).__name__}: {err}")
                     say(f"  {key.split('_')[0]} repeat {r + 1} failed: {err}")
                 rows[(key, seed + r)] = row
                 if fh is not None:

@@ -18,7 +18,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from .laws import get_law
-from .model import Model
+from .model import LENGTH_UNIT, Model
 from .missed import missed_slips
 from .nlp import Problem
 from .params import parameter_set, spec
@@ -290,15 +290,15 @@ def _run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray | Non
 
 def _carry(old_steps, values, new_steps):
     """Per-slip values (e.g. moving times) carried to a new trigger list: a slip keeps
-    its value by position when only triggers moved, an inserted one takes its nearest
-    old neighbour's."""
+    its value by position when only triggers moved, an inserted one takes the preceding
+    old slip's (the following one is the merged slip, its value inflated)."""
     if values is None:
         return None
     old_steps, values = np.asarray(old_steps), np.asarray(values)
     if len(new_steps) == len(old_steps):
         return values
-    near = np.clip(np.searchsorted(old_steps, new_steps), 0, len(old_steps) - 1)
-    return values[near]
+    prev = np.clip(np.searchsorted(old_steps, new_steps, side="right") - 1, 0, len(old_steps) - 1)
+    return values[prev]
 
 
 def _carry_horizons(old, new) -> np.ndarray:
@@ -334,6 +334,9 @@ def _carry_solution(old, new, w: np.ndarray) -> np.ndarray:
             k = int(np.searchsorted(t_old, t_new[j - 1], side="right"))
             if k >= 1 and t_old[k - 1] == t_new[j - 1]:
                 v[new.i_x + p_new + j] = x_old[p_old + k]
+            else:  # inserted: its frames' level, shifted as the solution shifts the old plateau it was in
+                q = p_old + k
+                v[new.i_x + p_new + j] = (new.pl_x0[p_new + j] - old.pl_x0[q]) / LENGTH_UNIT + x_old[q]
         p_new += len(t_new) + 1
         p_old += len(t_old) + 1
     return v
@@ -507,10 +510,14 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
             # the merged plateaus) far off: start afresh from the repaired sequence too
             from .start import staged_start
 
-            fresh, _ = staged_start(prob, start_given, seed=opts.seed or 0)
-            other = prob.solve(prob.initial_w(fresh))
+            try:
+                fresh, _ = staged_start(prob, start_given, seed=opts.seed or 0)
+                other = prob.solve(prob.initial_w(fresh))
+            except Exception as err:  # the warm solution stands
+                log.info("fresh start after inserting slips failed: %s", err)
+                other = dict(f=np.inf, iterations=0, wall_s=0.0)
             both_it, both_s = sol["iterations"] + other["iterations"], sol["wall_s"] + other["wall_s"]
-            sol = min((sol, other), key=lambda r: r["f"])
+            sol = min((sol, other), key=lambda r: r["f"] if np.isfinite(r["f"]) else np.inf)
             sol["iterations"], sol["wall_s"] = both_it, both_s
         sol["iterations"] += best["iterations"]
         sol["wall_s"] += best["wall_s"]

@@ -82,6 +82,8 @@ def missed_slips(prob, w: np.ndarray, min_gain: float = 9.0):
         last = prob.ev_step[e + 1] if e + 1 < prob.E and not prob.ev_first[e + 1] else np.inf
         sel = (ev.steps >= prob.ev_step[e] + prob.ev_M[e]) & (ev.steps < last)
         steps = ev.steps[sel]
+        if steps.size < 2 * MIN_FRAMES:
+            continue
         block = step * steps - (ev.trace.elongation[sel] - off)  # block position per frame
         # the model's step is approximate (the merged plateau's fitted position is a
         # compromise of its two levels): scan up to it, paying for the positions tried

@@ -664,6 +664,20 @@ class Problem:
         moved = gain[np.arange(E), best] > min_gain
         new_steps = self.ev_step.copy()
         new_steps[moved] += np.array(shifts)[best[moved]]
+        # two neighbours moved towards each other can meet: keep the less certain one
+        for _ in range(E):
+            clash = np.nonzero((np.diff(new_steps) <= 0) & (self.ev_run[1:] == self.ev_run[:-1]))[0]
+            if not clash.size:
+                break
+            for i in clash:
+                j = i if gain[i, best[i]] < gain[i + 1, best[i + 1]] else i + 1
+                if moved[j]:
+                    moved[j] = False
+                    new_steps[j] = self.ev_step[j]
+                else:  # the other one moved into it
+                    k = i + 1 if j == i else i
+                    moved[k] = False
+                    new_steps[k] = self.ev_step[k]
         changes = {}
         for ri in np.unique(self.ev_run[moved]):
             sel = self.ev_run == ri

@@ -165,3 +165,6 @@ def test_verification_measures_spread(tmp_path, monkeypatch):
     monkeypatch.setattr(experiment, "_fit_plan", lambda *a: (_ for _ in ()).throw(AssertionError("refit")))
     again = experiment.verify_plans(plan, 3, seed=1, workers=1, record=record)
     assert again["plan_stderr"] == mc["plan_stderr"]
+    # ... but not under other conditions (another noise level, another coating)
+    assert len(experiment._load_record(record, experiment._record_context(plan, 90.0, experiment.STICK_SPEED))) == 6
+    assert not experiment._load_record(record, experiment._record_context(plan, 60.0, experiment.STICK_SPEED))
