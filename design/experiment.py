@@ -407,8 +407,14 @@ def prior_from_fit(path: str | Path, coating: str, free: Sequence[str] = DEFAULT
 
 
 # ----------------------------------------------------------------------------- verification
+def _fit_options(free, stick):
+    from identify import FitOptions
+
+    return FitOptions(free=tuple(free), fixed={"v_stick": stick})
+
+
 def _fit_plan(plan, coating, free, noise_nm, stick, seed):
-    from identify import FitOptions, fit
+    from identify import fit
 
     traces = []
     for i, c in enumerate(plan):
@@ -416,7 +422,7 @@ def _fit_plan(plan, coating, free, noise_nm, stick, seed):
         traces.append(sim.sample(noise_nm=noise_nm, seed=10_000 * seed + i, name=f"run{i}"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = fit(traces, coating=coating, options=FitOptions(free=tuple(free), fixed={"v_stick": stick}))
+        res = fit(traces, coating=coating, options=_fit_options(free, stick))
     return {n: res[n].value for n in free}
 
 
@@ -429,12 +435,13 @@ def _spread(values: np.ndarray) -> tuple[float, float]:
 
 
 def _record_context(plan: ExperimentPlan, noise_nm: float, stick_speed_m_per_s: float) -> dict:
-    """Per plan key, everything its fits depend on: a record made under other conditions
-    is not reused (JSON round-tripped, to compare equal with what a record holds)."""
+    """Per plan key, everything its fits depend on (the fit's options included, so a
+    changed default refits): a record made under other conditions is not reused (JSON round-tripped, to compare equal with what a record holds)."""
     runs_of = {"plan_stderr": plan.plan, "reference_stderr": plan.reference_plan}
     return {k: json.loads(json.dumps(dict(runs=[c.to_json() for c in v], coating=plan.coating,
                                           free=list(plan.free), noise_nm=noise_nm,
-                                          stick_speed_m_per_s=stick_speed_m_per_s)))
+                                          stick_speed_m_per_s=stick_speed_m_per_s,
+                                          fit_options=repr(_fit_options(plan.free, stick_speed_m_per_s)))))
             for k, v in runs_of.items()}
 
 

@@ -464,6 +464,10 @@ class Problem:
         if not self.opts.free_phase:
             # slips recur at the middle of the step interval on average (uniform phase)
             lbx[self.i_phi : self.n_w] = ubx[self.i_phi : self.n_w] = 0.5
+        else:
+            # a run's common phase lies inside the trigger interval: the interval
+            # constraint itself, for what all its slips share
+            lbx[self.i_phi : self.n_w], ubx[self.i_phi : self.n_w] = 0.0, 1.0
         for i, v in (fixed or {}).items():
             lbx[i] = ubx[i] = v
         return lbx, ubx
