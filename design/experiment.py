@@ -426,12 +426,15 @@ def _fit_plan(plan, coating, free, noise_nm, stick, seed):
     return {n: res[n].value for n in free}
 
 
+from identify.events import _MAD_TO_SIGMA  # noqa: E402  (the one MAD -> σ constant)
+
+
 def _spread(values: np.ndarray) -> tuple[float, float]:
     """Standard deviation and robust spread (1.4826 × MAD) of repeated estimates."""
     if values.size < 2:
         return float("nan"), float("nan")
     return (float(np.std(values, ddof=1)),
-            float(1.482602218505602 * np.median(np.abs(values - np.median(values)))))
+            float(_MAD_TO_SIGMA * np.median(np.abs(values - np.median(values)))))
 
 
 def _record_context(plan: ExperimentPlan, noise_nm: float, stick_speed_m_per_s: float) -> dict:

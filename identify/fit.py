@@ -322,7 +322,7 @@ def _carry_solution(old, new, w: np.ndarray) -> np.ndarray:
     an inserted plateau its position in the frames."""
     if new.n_w == old.n_w:
         return w.copy()
-    v = new.initial_w(dict(zip(old.theta.names, old.theta.from_scaled(w[: old.n_theta]))))
+    v = np.zeros(new.n_w)  # every entry is set below
     v[: old.i_x] = w[: old.i_x]
     v[new.i_phi : new.n_w] = w[old.i_phi : old.n_w]
     x_old = w[old.i_x : old.i_x + old.P]

@@ -381,7 +381,7 @@ class Problem:
                 + [ix[n] for n in self.theta.names if n in ix]
             self._cb_val = _ArcCallback("arcs", self.arcs, E, opts.threads, False, self.counter)
             self._cb_jac = _ArcCallback("arc_jacs", self.arcs, E, opts.threads, True, self.counter, rows,
-                                        scheme=getattr(opts, "arc_jacobian", "central"))
+                                        scheme=opts.arc_jacobian)
             Y = self._cb_val(A)[:2, :]
             JA = ca.MX(_blockdiag_sparsity(2, self.arcs.n_in, E), ca.vec(self._cb_jac(A)))
             dY_dw = ca.mtimes(JA, ca.jacobian(ca.vec(A), w))
@@ -474,7 +474,7 @@ class Problem:
 
     # ---------------------------------------------------------------- solvers
     def solve(self, w0: np.ndarray, fixed: Mapping[int, float] | None = None) -> dict:
-        self.jacobian_scheme(getattr(self.opts, "arc_jacobian", "central"))
+        self.jacobian_scheme(self.opts.arc_jacobian)
         if self.opts.solver == "ipopt":
             return self.solve_ipopt(w0, fixed)
         return self.solve_gn(w0, fixed)
@@ -674,14 +674,9 @@ class Problem:
             if not clash.size:
                 break
             for i in clash:
-                j = i if gain[i, best[i]] < gain[i + 1, best[i + 1]] else i + 1
-                if moved[j]:
-                    moved[j] = False
-                    new_steps[j] = self.ev_step[j]
-                else:  # the other one moved into it
-                    k = i + 1 if j == i else i
-                    moved[k] = False
-                    new_steps[k] = self.ev_step[k]
+                j = min((p for p in (i, i + 1) if moved[p]), key=lambda p: gain[p, best[p]])
+                moved[j] = False
+                new_steps[j] = self.ev_step[j]
         changes = {}
         for ri in np.unique(self.ev_run[moved]):
             sel = self.ev_run == ri
