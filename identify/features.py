@@ -47,7 +47,10 @@ class Layout:
         var[prob.i_x : prob.i_x + prob.P] = prob.pl_run
         for ri, k in prob.phase_of_run.items():
             var[prob.i_phi + k] = ri
-        return cls(row_run=rows.astype(int), con_run=np.asarray(prob.ev_run, int), var_run=var, groups=grp)
+        var[prob.i_s : prob.i_s + prob.n_s] = prob.ev_run[: prob.n_s]
+        # constraints: slip-length continuity per slip, then the start positions'
+        con = np.r_[prob.ev_run, prob.ev_run[prob.ev_next] if prob.n_s else np.zeros(0, int)]
+        return cls(row_run=rows.astype(int), con_run=con.astype(int), var_run=var, groups=grp)
 
 
 @dataclass

@@ -87,6 +87,15 @@ class FitOptions:
         bounded phases removed τ's bias (z −1.5…−2.1 → 0.2…0.4) but made its standard
         error 3–5× larger and the fit 5–10× slower, ending in a failed line search. Off
         by default.
+    arc_start : {"aged", "mid"}
+        The contact state a slip arc starts from. ``aged`` (default): the previous
+        slip's end state aged over the rest, a shooting variable per slip (its position
+        in the trigger interval) tied to it by a constraint, as in the simulator; the
+        run's first slip starts mid-interval (its initial contact is not observed).
+        ``mid``: every arc starts from the state whose capacity sits in the middle of its
+        trigger interval (a valid trigger for any parameters, the model off by up to
+        half an interval of capacity, ~0.5 nm of slip length: invisible at 90 nm, but
+        ~10 σ on noiseless traces).
     covariance : {"robust", "model"}
         ``robust`` (default): trigger residuals counted cluster-robustly by run (slips of
         a run share a phase error); ``model``: every residual independent.
@@ -113,6 +122,7 @@ class FitOptions:
     scale_covariance: bool = True
     covariance: str = "robust"
     free_phase: bool = False
+    arc_start: str = "aged"
 
     def __post_init__(self):
         get_law(self.law)
@@ -148,6 +158,8 @@ class FitOptions:
             raise ValueError(f"multistart = {self.multistart!r}: must be >= 0")
         if self.arc_jacobian not in ("forward", "central"):
             raise ValueError(f"arc_jacobian = {self.arc_jacobian!r}: choose 'forward' or 'central'")
+        if self.arc_start not in ("aged", "mid"):
+            raise ValueError(f"arc_start = {self.arc_start!r}: choose 'aged' or 'mid'")
         if self.covariance not in ("robust", "model"):
             raise ValueError(f"covariance = {self.covariance!r}: choose 'robust' or 'model'")
         if self.solver not in ("gauss-newton", "ipopt"):
@@ -319,12 +331,20 @@ def _carry_horizons(old, new) -> np.ndarray:
 def _carry_solution(old, new, w: np.ndarray) -> np.ndarray:
     """The previous solution as a start for the new mode sequence: parameters, offsets
     and phases as they were; each plateau the position of the old plateau it lies in,
-    an inserted plateau its position in the frames."""
+    an inserted plateau its position in the frames. The arcs' start positions are left
+    mid-interval, for :meth:`Problem.sync_start_positions` once the arcs are sized."""
     if new.n_w == old.n_w:
         return w.copy()
     v = np.zeros(new.n_w)  # every entry is set below
     v[: old.i_x] = w[: old.i_x]
-    v[new.i_phi : new.n_w] = w[old.i_phi : old.n_w]
+    v[new.i_phi : new.i_s] = w[old.i_phi : old.i_s]
+    # start positions: each run's first slip keeps its own, the others follow from the
+    # arcs once they are sized (sync_start_positions)
+    v[new.i_s : new.n_w] = 0.5
+    if new.n_s and old.n_s:
+        for ri in np.unique(new.ev_run):
+            v[new.i_s + new.ev_firsts[new.ev_run[new.ev_firsts] == ri]] = \
+                w[old.i_s + old.ev_firsts[old.ev_run[old.ev_firsts] == ri]]
     x_old = w[old.i_x : old.i_x + old.P]
     p_new = p_old = 0
     for ri, r in enumerate(new.runs):
@@ -509,6 +529,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         prob.build()
         w_next = _carry_solution(M_prev, prob, best["w"])
         prob.size_arcs(w_next)
+        w_next = prob.sync_start_positions(w_next)
         sol = prob.solve(w_next)
         if n_added and opts.staged_start:
             # a missed slip bends the first solution (and the staged start made from

@@ -2,10 +2,14 @@
 
 Decision variables
     θ, the free model parameters (scaled: log for positive ones, else value/scale); per
-    run optionally an elongation offset; per plateau p the block position x_p (µm).
+    run optionally an elongation offset; per plateau p the block position x_p (µm); per
+    run the phase its slips recur at (fixed at ½ unless ``free_phase``); per slip e the
+    position s_e in its trigger interval that its arc starts from (``arc_start="aged"``).
 Constraints (continuity of the hybrid trajectory)
     x_{p+1} = x_p + δ_e: slip e's length from its arc (:mod:`identify.arcs`, the
-    symbolic slip model integrated event-aware over the steps it spans).
+    symbolic slip model integrated event-aware over the steps it spans);
+    s_e = where the previous arc's end state, aged in closed form over the rest, puts
+    the capacity in slip e's interval (every slip but a run's first).
 Residuals (σ-normalised: the noise model is stated and the covariance follows from it)
     * plateau frames: e_j = Δx·n_j − x_p + offset + noise(σ_run), compressed exactly into
       each plateau's mean (√n·(ē − Δx·n̄ + x − offset)/σ) and the run's pooled
@@ -14,16 +18,21 @@ Residuals (σ-normalised: the noise model is stated and the covariance follows f
     * triggers: the contact left by the previous slip's arc, aged in closed form over
       the rest, must put the capacity inside the trigger step's spring-force interval
       [F_s(e − Δx), F_s(e)] (the slip happened at this step, not the one before). The
-      position within is uniform: residual √12·(position − ½), smooth in the parameters
-      where the trigger rule itself is discrete;
+      position within is uniform: residual √12·(position − φ_run), smooth in the
+      parameters where the trigger rule itself is discrete (:func:`trigger_residual`);
+      a run's first slip, whose contact comes from the unobserved initial state, gets
+      the uniform's √12·(s_e − ½);
     * creep runs (no resolvable slips): their steady elongation against the steady
       friction at the pull speed.
 
-Each arc starts from its own trigger's mid-interval state, so it is a valid trigger for
-any parameters (a state that the model aged above the force after the step would not
-slip: the arc would have a cliff). The data cannot place the capacity inside the
-interval; the mid-point moves a fast slip's length by ~|∂δ/∂ψ0|·Δψ/2 ≈ 0.5 nm at 5 µN,
-far below a plateau's ~15 nm precision.
+Arc starts. With ``arc_start="aged"`` (default) an arc starts from the state the
+previous arc left, aged over the rest, as in the simulator: at the true parameters the
+slip lengths then match a noiseless trace to 0.001-0.007 nm (measured). The start
+position passes through :func:`below_top`, so an arc always starts with the force above
+the capacity and slips (a state aged above the force would not: a cliff in the
+objective). ``arc_start="mid"`` starts every arc mid-interval, valid for any parameters
+but off by 0.06-0.35 nm of slip length at the truth (measured; ~|∂δ/∂ψ0|·Δψ/2): far
+below a plateau's ~15 nm precision at 90 nm noise, ~10 σ on a noiseless trace.
 
 Derivatives: the residuals and constraints are explicit in w and the arc outputs Y; the
 arcs' Jacobians (central differences of the compiled arc) are chain-ruled in a sparse
@@ -56,6 +65,11 @@ log = logging.getLogger(__name__)
 
 
 STAT_TOL = 1e-4  # ½χ² the Gauss–Newton model may still promise at convergence
+# constraint violation at convergence (µm of slip length): 1 pm, 0.02 σ of a noiseless
+# trace's print precision, and above the arcs' own integration noise (reltol 1e-6 of a
+# ~0.5 µm slip: the adaptive steps make the slip length jump by ~0.5 pm between nearby
+# inputs, which held the solver at |g| ≈ 2e-7 for twenty iterations at 1e-7)
+FEAS_TOL = 1e-6
 COVARIANCE_REL_STEP = 1e-4  # secant step of the arc differences for the covariance (see central_differences)
 
 
@@ -158,6 +172,25 @@ def trigger_residual(s, phase=0.5):
     return math.sqrt(12) * (s - phase)
 
 
+START_SCALE_UM = 1e-3  # slip length per unit of start position (measured ~0.3-1 nm)
+START_MARGIN = 0.02  # fraction of the trigger interval an arc's start keeps below its top
+
+
+def below_top(s, ops=np, eps: float = START_MARGIN):
+    """s itself up to 1 − 2ε, then bent (C¹) to stay below 1 − ε.
+
+    An arc started from a capacity at or above the spring force would not slip (a cliff
+    in the objective), yet a true trigger can lie anywhere in [0, 1]: the start is exact
+    for every position up to 1 − 2ε, and off by less than ε of the interval above.
+    """
+    u = (1 - s) / eps
+    if ops is ca:
+        g = 1 + ca.fmin(ca.fmax(u, 0), 2) ** 2 / 4 + ca.fmax(u - 2, 0)
+    else:
+        g = 1 + np.clip(u, 0, 2) ** 2 / 4 + np.maximum(u - 2, 0)
+    return 1 - eps * g
+
+
 def _blockdiag_sparsity(rows: int, cols: int, E: int) -> ca.Sparsity:
     """E dense rows × cols blocks on the diagonal (column-major nonzeros = vec of the
     rows × cols·E matrix of the blocks side by side)."""
@@ -199,7 +232,7 @@ class Problem:
         self.n_theta, self.n_off, self.P, self.E = n_th, n_off, P, E
         self.i_off, self.i_x = n_th, n_th + n_off
         self.i_phi = self.i_x + P  # per events run: the phase its slips recur at
-        self.n_w = self.i_phi + len(ev_runs)
+        self.i_s = self.i_phi + len(ev_runs)  # per slip: its arc's start position
         idx = {id(r): i for i, r in enumerate(self.runs)}
         pl = dict(run=[], n=[], e=[], s=[], x0=[], t=[])
         ev = dict(run=[], prev=[], step=[], first=[], gap=[])
@@ -237,6 +270,9 @@ class Problem:
         self.pl_sigma = np.array([rr[i].sigma for i in self.pl_run])
         self.ev_next = np.nonzero(~self.ev_first)[0]  # slips with a predecessor in their run
         self.n_trig = len(self.ev_next)
+        self.ev_firsts = np.nonzero(self.ev_first)[0]  # each run's first slip
+        self.n_s = E if self.opts.arc_start == "aged" else 0
+        self.n_w = self.i_s + self.n_s
         ev_run_ids = sorted(set(self.ev_run.tolist()))
         self.phase_of_run = {ri: k for k, ri in enumerate(ev_run_ids)}
         self.n_phase = len(ev_run_ids)
@@ -255,12 +291,38 @@ class Problem:
         step = self.model.step(P)
         return self.model.spring_force(e0 - step, P, ops=ops), self.model.spring_force(e0, P, ops=ops)
 
-    def mid_state(self, x_prev_m, e0, P, ops=np):
-        """The contact state whose capacity sits in the middle of the trigger interval."""
+    def start_state(self, s, x_prev_m, e0, P, ops=np):
+        """The contact state whose capacity sits at position s of the trigger interval
+        [F_s(e0 − Δx), F_s(e0)], s kept below the top (:func:`below_top`) so that the
+        arc starts with the spring force above the capacity: it slips."""
         f_lo, f_hi = self.interval(x_prev_m, e0, P, ops)
         band = P["A"] * ops.log(1 + P["v_stick"] / P["vc"])
-        mu = 0.5 * (f_lo + f_hi) / self.model.normal_load(P) - band - self.model.topography(x_prev_m, P, ops)
+        cap = f_lo + below_top(s, ops) * (f_hi - f_lo)
+        mu = cap / self.model.normal_load(P) - band - self.model.topography(x_prev_m, P, ops)
         return self.law.state_from_coefficient(mu, P, ops)
+
+    def start_positions(self, w):
+        """Each arc's start position in its trigger interval (column, MX or array): the
+        shooting variables, or the middle for every slip with ``arc_start="mid"``."""
+        if self.n_s:
+            return w[self.i_s : self.i_s + self.n_s]
+        return ca.DM.ones(self.E, 1) * 0.5 if isinstance(w, ca.MX) else np.full(self.E, 0.5)
+
+    def sync_start_positions(self, w: np.ndarray, passes: int = 2) -> np.ndarray:
+        """w with every start position set to where the previous arc's end puts it (a
+        consistent point for the shooting constraints; the end state barely depends on
+        the start, the slip rejuvenating the contact, so two passes suffice)."""
+        w = np.array(w, float)
+        if not self.n_s or not self.n_trig:
+            return w
+        for _ in range(passes):
+            Y = self.arcs.evaluate(np.array(self._arc_inputs(w)), self.opts.threads)
+            w[self.i_s + self.ev_next] = np.array(self._s_target_fun(w, Y[:2])).ravel()
+        return w
+
+    def mid_state(self, x_prev_m, e0, P, ops=np):
+        """The contact state whose capacity sits in the middle of the trigger interval."""
+        return self.start_state(0.5, x_prev_m, e0, P, ops)
 
     def position(self, z, x_prev_m, e0, P, ops=np, z_before=None):
         """Where state z puts the capacity inside the trigger's admissible interval (0 .. 1).
@@ -334,7 +396,7 @@ class Problem:
             x_prev = x_um[self.ev_prev] * LENGTH_UNIT
             e0 = step * ca.DM(self.ev_step) - x_prev
             Pev = dict(P, k=ca.DM(self.ev_k), Nb=ca.DM(self.ev_Nb))
-            z0 = self.mid_state(x_prev, e0, Pev, ops=ca)
+            z0 = self.start_state(self.start_positions(w), x_prev, e0, Pev, ops=ca)
             rows = [(x_prev / LENGTH_UNIT).T, (e0 / LENGTH_UNIT).T, z0.T]
             for n in self.arcs.param_names:
                 v = P[n]
@@ -355,6 +417,16 @@ class Problem:
             res.append(math.sqrt(12) * (s_pos - ca.reshape(phi[k_of.tolist()], -1, 1)))
             res.append(math.sqrt(12) * (phi - 0.5))
             g = x_um[self.ev_prev + 1] - x_um[self.ev_prev] - Y[0, :].T
+            if self.n_s:
+                # shooting: each arc starts where the previous arc's end, aged over the
+                # rest, puts the capacity in the (plain) trigger interval; a run's first
+                # slip from an unobserved initial contact, uniform over the interval
+                self._s_target = self.position(z_aged, x_prev[nx], e0[nx], Pn, ops=ca)
+                s_all = w[self.i_s : self.i_s + self.n_s]
+                # (in µm of slip length, ~1 nm per unit of s, so that the feasibility
+                # tolerance means the same as for the slip lengths)
+                g = ca.vertcat(g, START_SCALE_UM * (s_all[self.ev_next.tolist()] - self._s_target))
+                res.append(math.sqrt(12) * (s_all[self.ev_firsts.tolist()] - 0.5))
         for r in self.creep_runs:
             Pr = dict(P, k=r.k, Nb=r.Nb)
             vp = r.fp * step
@@ -372,6 +444,8 @@ class Problem:
         Ysym = ca.MX.sym("Y", 2, max(E, 1))
         A, rY, gY = self._symbolic(w, Ysym)
         R_w = ca.jacobian(rY, w)
+        if self.n_s:
+            self._s_target_fun = ca.Function("s_target", [w, Ysym], [self._s_target])
         if E:
             ix = self.arcs.index
             # the block position matters to an arc only through the topography ripple:
@@ -441,8 +515,10 @@ class Problem:
         w[: self.n_theta] = np.clip(th, self.theta.lo + 1e-9, self.theta.hi - 1e-9)
         w[self.i_x : self.i_x + self.P] = self.pl_x0 / LENGTH_UNIT
         w[self.i_phi : self.i_phi + self.n_phase] = 0.5
+        w[self.i_s : self.i_s + self.n_s] = 0.5
         if self.E:
             self.size_arcs(w)
+            w = self.sync_start_positions(w)
         return w
 
     def size_arcs(self, w: np.ndarray) -> int:
@@ -463,11 +539,11 @@ class Problem:
         lbx[: self.n_theta], ubx[: self.n_theta] = self.theta.lo, self.theta.hi
         if not self.opts.free_phase:
             # slips recur at the middle of the step interval on average (uniform phase)
-            lbx[self.i_phi : self.n_w] = ubx[self.i_phi : self.n_w] = 0.5
+            lbx[self.i_phi : self.i_s] = ubx[self.i_phi : self.i_s] = 0.5
         else:
             # a run's common phase lies inside the trigger interval: the interval
             # constraint itself, for what all its slips share
-            lbx[self.i_phi : self.n_w], ubx[self.i_phi : self.n_w] = 0.0, 1.0
+            lbx[self.i_phi : self.i_s], ubx[self.i_phi : self.i_s] = 0.0, 1.0
         for i, v in (fixed or {}).items():
             lbx[i] = ubx[i] = v
         return lbx, ubx
@@ -542,7 +618,7 @@ class Problem:
             # than 2e-4 (the parameters would move by ≪ 0.01 σ). The relative-step test
             # below can wait for ever when finite-difference arc Jacobians are noisy.
             feas0 = float(np.abs(g).max()) if g.size else 0.0
-            stat_tol, feas_tol = getattr(self, "stat_tol", STAT_TOL), getattr(self, "feas_tol", 1e-7)
+            stat_tol, feas_tol = getattr(self, "stat_tol", STAT_TOL), getattr(self, "feas_tol", FEAS_TOL)
             if feas0 < feas_tol and -0.5 * float(grad @ d) < stat_tol:
                 status, success = "Solve_Succeeded", True
                 break
@@ -573,7 +649,7 @@ class Problem:
             lm = lm / 10 if lm > 1e-3 else 0.0
             feas = float(np.abs(g).max()) if g.size else 0.0
             log.debug("GN it %d: f %.8g |g| %.2e dθ %.2e α %.2g lm %.1e", it, 0.5 * r @ r, feas, step_th, a, lm)
-            if step_th < opts.tol and feas < 1e-7 and abs(phi0 - phi1) <= opts.tol * (1 + phi0):
+            if step_th < opts.tol and feas < feas_tol and abs(phi0 - phi1) <= opts.tol * (1 + phi0):
                 status, success = "Solve_Succeeded", True
                 break
         return dict(w=w, f=0.5 * float(r @ r), status=status, success=success, iterations=it,
@@ -609,18 +685,23 @@ class Problem:
         prev = self.ev_prev[ev]
         e0 = step * n_new - x[prev]
         Pe = dict(P, k=self.ev_k[ev], Nb=self.ev_Nb[ev])
-        A = np.repeat(A0, S, axis=1)
-        A[1] = e0 / LENGTH_UNIT
-        A[2] = self.mid_state(x[prev], e0, Pe)
-        Yc = self.arcs.evaluate(A, self.opts.threads)
-        # own trigger: the previous arc's end aged over the changed rest
         first = self.ev_first[ev]
         pv = np.maximum(ev - 1, 0)
+        rest = (n_new - self.ev_step[pv] - self.ev_M[pv]) / self.ev_fp[pv]
+        A = np.repeat(A0, S, axis=1)
+        A[1] = e0 / LENGTH_UNIT
+        s_start = np.asarray(self.start_positions(w), float)[ev]
+        if self.n_s:  # the shifted arc starts from the previous end aged over the changed rest
+            aged = self.position(law.rest(Y0[1, pv], np.maximum(rest, 0), P), x[prev], e0, Pe)
+            s_start = np.where(first, s_start, aged)
+        A[2] = self.start_state(s_start, x[prev], e0, Pe)
+        Yc = self.arcs.evaluate(A, self.opts.threads)
+
+        # own trigger: the previous arc's end aged over the changed rest
         def pos(z_end, rest_s, fp, xp, e, Pp):
             return self.position(law.rest(z_end, np.maximum(rest_s, 0), P), xp, e, Pp,
                                  z_before=law.rest(z_end, np.maximum(rest_s - 1 / fp, 0), P))
 
-        rest = (n_new - self.ev_step[pv] - self.ev_M[pv]) / self.ev_fp[pv]
         s_own = pos(Y0[1, pv], rest, self.ev_fp[ev], x[prev], e0, Pe)
         own_new = np.where(first, 0.0, trigger_residual(s_own, phase[ev]) ** 2)
         valid = first | ((s_own > 0) & (s_own < 1))  # the capacity must be exceeded at n_new only
@@ -702,9 +783,10 @@ class Problem:
                        for r in self.runs))
 
     def n_effective(self) -> int:
-        """Free dimensions: parameters, offsets, and per events run its first plateau
-        and its trigger phase (the other plateaus follow from the constraints)."""
-        per_run = 2 if self.opts.free_phase else 1
+        """Free dimensions: parameters, offsets, and per events run its first plateau,
+        its trigger phase (free_phase) and its first slip's start (arc_start="aged"); the
+        other plateaus and starts follow from the constraints."""
+        per_run = 1 + bool(self.opts.free_phase) + bool(self.n_s)
         return self.n_theta + self.n_off + per_run * sum(1 for r in self.runs if r.kind == "events")
 
     def residual_groups(self) -> dict:
@@ -712,7 +794,8 @@ class Problem:
         n_slope = sum(1 for r in self.runs if r.kind == "events" and r.s_nn > 0)
         p = self.P
         t0 = p + n_slope
-        t1 = t0 + self.n_trig + (self.n_phase if self.E else 0)  # phase rows exist with any slip
+        # phase rows exist with any slip; then the first slips' start positions
+        t1 = t0 + self.n_trig + (self.n_phase if self.E else 0) + (len(self.ev_firsts) if self.n_s else 0)
         return dict(plateaus=(0, p), slopes=(p, t0), triggers=(t0, t1),
                     creep=(t1, t1 + len(self.creep_runs)))
 
@@ -721,7 +804,8 @@ class Problem:
         if not self.E:
             return np.zeros(0, int)
         phase_runs = sorted(self.phase_of_run, key=self.phase_of_run.get)
-        return np.r_[self.ev_run[self.ev_next], np.array(phase_runs, int)]
+        first = self.ev_run[self.ev_firsts] if self.n_s else np.zeros(0, int)
+        return np.r_[self.ev_run[self.ev_next], np.array(phase_runs, int), first]
 
     def information(self, w: np.ndarray, evaluated=None) -> np.ndarray:
         """Gauss–Newton information on the scaled free parameters, every other variable
@@ -791,7 +875,7 @@ class Problem:
         H = (Jr.T @ Jr).tocsc()
         fixed_idx = set(fixed_idx)
         if not self.opts.free_phase:
-            fixed_idx |= set(range(self.i_phi, self.n_w))
+            fixed_idx |= set(range(self.i_phi, self.i_s))
         keep = np.setdiff1d(np.arange(self.n_w), sorted(fixed_idx))
         Hk, Jgk = H[keep][:, keep], Jg[:, keep]
         n, m = Hk.shape[0], Jgk.shape[0]
