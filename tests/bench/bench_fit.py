@@ -1,13 +1,20 @@
 """Benchmarks of the full-model fit (issue: identification, item 8). Not timed tests:
 they print what they measure.
 
-    python tests/bench/bench_fit.py calibration --repeats 50 [--workers 2]
+    python tests/bench/bench_fit.py calibration --repeats 50 [--workers 2] [--jitter-load 0.05]
     python tests/bench/bench_fit.py speed [--runs 2,5,10] [--steps 2000]
 
 calibration: one noiseless design of runs is simulated once; each repeat draws new 90 nm
 camera noise (seed = repeat), fits from a start 20 % off, and records whether each 95 %
 interval contains the truth. Prints, per parameter, the coverage (target 90-98 %), the
 mean error and the spread of the estimates against the mean reported standard error.
+With ``--jitter-load J`` each repeat also scales every run's normal load by a seeded
+factor in [1 − J, 1 + J] (simulated afresh): a stick-slip cycle locks its triggers at
+one phase of the step interval, a deterministic function of the run's conditions, so
+noise repeats of one design share one set of phase errors, and coverage over them is
+coverage conditional on those phases. A few per cent of load moves the trigger
+elongation by a fraction of a step and redraws the phases: coverage over the jittered
+designs is the coverage a researcher can expect, not knowing where their cycles lock.
 
 speed: joint fits of N runs of about ``--steps`` puller steps each (FOTAS, 90 nm), the
 time per fit, its growth with N (the exponent of a power-law fit; 1 = linear), and where
@@ -65,8 +72,12 @@ def _truth(coating):
 
 
 def _one_repeat(args):
-    coating, travel_um, seed = args
-    sims = _simulate(CAL_CONDITIONS, coating, travel_um)
+    coating, travel_um, seed, jitter = args
+    conds = CAL_CONDITIONS
+    if jitter:
+        f = np.random.default_rng(10_000 + seed).uniform(1 - jitter, 1 + jitter, len(conds))
+        conds = [(k, nb * fi, fp) for (k, nb, fp), fi in zip(conds, f)]
+    sims = _simulate(conds, coating, travel_um)
     traces = [s.sample(noise_nm=90, seed=1000 * seed + i, name=f"r{i}") for i, s in enumerate(sims)]
     truth = _truth(coating)
     start = {"mu_max": truth["mu_max"] / 1.2, "mu_min": truth["mu_min"] * 1.2,
@@ -77,18 +88,18 @@ def _one_repeat(args):
     except Exception as err:  # one failed repeat is data, not a crash
         return dict(seed=seed, error=f"{type(err).__name__}: {err}")
     out = dict(seed=seed, wall_s=time.perf_counter() - t0, success=bool(res.solver["success"]),
-               iterations=res.solver["iterations"])
+               iterations=res.solver["iterations"], normal_loads_uN=[c[1] for c in conds])
     for n in FREE:
         p = res[n]
         out[n] = dict(value=p.value, stderr=p.stderr, ci95=list(p.ci95) if p.ci95 else None)
     return out
 
 
-def calibration(repeats: int, coating: str, travel_um: float, workers: int) -> dict:
+def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitter: float = 0.0) -> dict:
     from concurrent.futures import ProcessPoolExecutor
 
     truth = _truth(coating)
-    jobs = [(coating, travel_um, s) for s in range(repeats)]
+    jobs = [(coating, travel_um, s, jitter) for s in range(repeats)]
     rows = []
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers) as ex:
@@ -98,21 +109,24 @@ def calibration(repeats: int, coating: str, travel_um: float, workers: int) -> d
     print(file=sys.stderr)
     ok = [r for r in rows if "error" not in r]
     summary = {}
-    print(f"calibration: {coating}, {len(CAL_CONDITIONS)} runs x {travel_um:g} µm, 90 nm, start 20 % off; "
-          f"{len(ok)}/{repeats} repeats fitted ({sum(r['success'] for r in ok)} converged)")
-    print(f"  {'param':8} {'coverage':>9} {'mean err':>9} {'sd(est)':>9} {'mean se':>9} {'sd/se':>6}")
+    print(f"calibration: {coating}, {len(CAL_CONDITIONS)} runs x {travel_um:g} µm, 90 nm, start 20 % off"
+          + (f", loads jittered ±{100 * jitter:g} %" if jitter else "")
+          + f"; {len(ok)}/{repeats} repeats fitted ({sum(r['success'] for r in ok)} converged)")
+    print(f"  {'param':8} {'coverage':>9} {'mean err':>9} {'sd(est)':>9} {'mean se':>9} {'sd/se':>6} {'med z':>6}")
     for n in FREE:
         v = np.array([r[n]["value"] for r in ok])
         se = np.array([r[n]["stderr"] if r[n]["stderr"] is not None else np.nan for r in ok], float)
         cover = np.array([r[n]["ci95"] is not None and r[n]["ci95"][0] <= truth[n] <= r[n]["ci95"][1] for r in ok])
         rel = (v - truth[n]) / truth[n]
+        z = (v - truth[n]) / se
         summary[n] = dict(coverage=float(cover.mean()) if len(ok) else None, mean_rel_error=float(rel.mean()),
                           sd_rel=float(np.std(rel, ddof=1)) if len(ok) > 1 else None,
-                          mean_rel_stderr=float(np.nanmean(se / truth[n])))
+                          mean_rel_stderr=float(np.nanmean(se / truth[n])),
+                          median_z=float(np.nanmedian(z)) if len(ok) else None)
         s = summary[n]
         print(f"  {n:8} {100 * s['coverage']:8.0f}% {100 * s['mean_rel_error']:+8.2f}% "
               f"{100 * (s['sd_rel'] or np.nan):8.2f}% {100 * s['mean_rel_stderr']:8.2f}% "
-              f"{(s['sd_rel'] or np.nan) / s['mean_rel_stderr']:6.2f}")
+              f"{(s['sd_rel'] or np.nan) / s['mean_rel_stderr']:6.2f} {s['median_z'] or np.nan:+6.2f}")
     walls = [r["wall_s"] for r in ok]
     if walls:
         print(f"  time per fit: median {np.median(walls):.1f} s (workers {workers})")
@@ -120,7 +134,7 @@ def calibration(repeats: int, coating: str, travel_um: float, workers: int) -> d
     for r in errors:
         print(f"  repeat {r['seed']} failed: {r['error']}")
     return dict(coating=coating, repeats=repeats, travel_um=travel_um, conditions=CAL_CONDITIONS,
-                summary=summary, rows=rows)
+                jitter_load=jitter, summary=summary, rows=rows)
 
 
 def speed(n_runs_list, steps: int, coating: str) -> dict:
@@ -167,6 +181,8 @@ def main(argv=None) -> int:
     c.add_argument("--coating", default="FOTAS")
     c.add_argument("--travel-um", type=float, default=20.0)
     c.add_argument("--workers", type=int, default=1)
+    c.add_argument("--jitter-load", type=float, default=0.0, metavar="J",
+                   help="scale each run's load by a seeded factor in [1-J, 1+J] per repeat")
     s = sub.add_parser("speed")
     s.add_argument("--runs", default="2,5,10")
     s.add_argument("--steps", type=int, default=2000)
@@ -175,7 +191,9 @@ def main(argv=None) -> int:
         p.add_argument("--json", metavar="OUT")
     a = ap.parse_args(argv)
     if a.what == "calibration":
-        out = calibration(a.repeats, a.coating, a.travel_um, a.workers)
+        if not 0 <= a.jitter_load < 1:
+            ap.error(f"--jitter-load {a.jitter_load}: must be in [0, 1)")
+        out = calibration(a.repeats, a.coating, a.travel_um, a.workers, a.jitter_load)
     else:
         out = speed([int(x) for x in a.runs.split(",")], a.steps, a.coating)
     if a.json:
