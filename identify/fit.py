@@ -487,7 +487,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         w[: prob.n_theta] = np.clip(w0[: prob.n_theta] + np.where(prob.theta.log, rng.normal(0, 0.3, prob.n_theta),
                                     rng.normal(0, 0.3, prob.n_theta) * np.abs(w0[: prob.n_theta]) + 1e-3),
                                     prob.theta.lo + 1e-9, prob.theta.hi - 1e-9)
-        starts.append(w)
+        starts.append(prob.sync_start_positions(w) if prob.E else w)
     results = []
     for i, w in enumerate(starts):
         say(f"solving: start {i + 1} of {len(starts)}")
@@ -529,7 +529,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         prob.build()
         w_next = _carry_solution(M_prev, prob, best["w"])
         prob.size_arcs(w_next)
-        w_next = prob.sync_start_positions(w_next)
+        w_next = prob.settle_arcs(w_next)
         sol = prob.solve(w_next)
         if n_added and opts.staged_start:
             # a missed slip bends the first solution (and the staged start made from

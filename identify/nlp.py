@@ -315,10 +315,20 @@ class Problem:
         w = np.array(w, float)
         if not self.n_s or not self.n_trig:
             return w
+        idx = self.i_s + self.ev_next
         for _ in range(passes):
             Y = self.arcs.evaluate(np.array(self._arc_inputs(w)), self.opts.threads)
-            w[self.i_s + self.ev_next] = np.array(self._s_target_fun(w, Y[:2])).ravel()
+            t = np.array(self._s_target_fun(w, Y[:2])).ravel()
+            w[idx] = np.where(np.isfinite(t), t, w[idx])  # an arc that failed keeps its start
         return w
+
+    def settle_arcs(self, w: np.ndarray) -> np.ndarray:
+        """Start positions synced, arcs sized from them (a lower start slips further and
+        may need a longer horizon), and synced again if the horizons changed."""
+        w = self.sync_start_positions(w)
+        M = self.ev_M.copy()
+        self.size_arcs(w)
+        return self.sync_start_positions(w) if not np.array_equal(M, self.ev_M) else w
 
     def mid_state(self, x_prev_m, e0, P, ops=np):
         """The contact state whose capacity sits in the middle of the trigger interval."""
@@ -425,8 +435,10 @@ class Problem:
                 s_all = w[self.i_s : self.i_s + self.n_s]
                 # (in µm of slip length, ~1 nm per unit of s, so that the feasibility
                 # tolerance means the same as for the slip lengths)
-                g = ca.vertcat(g, START_SCALE_UM * (s_all[self.ev_next.tolist()] - self._s_target))
-                res.append(math.sqrt(12) * (s_all[self.ev_firsts.tolist()] - 0.5))
+                # (a 1x1 MX indexed by a list comes back as a row: force columns)
+                s_next = ca.reshape(s_all[self.ev_next.tolist()], -1, 1)
+                g = ca.vertcat(g, START_SCALE_UM * (s_next - ca.reshape(self._s_target, -1, 1)))
+                res.append(math.sqrt(12) * (ca.reshape(s_all[self.ev_firsts.tolist()], -1, 1) - 0.5))
         for r in self.creep_runs:
             Pr = dict(P, k=r.k, Nb=r.Nb)
             vp = r.fp * step
@@ -517,8 +529,8 @@ class Problem:
         w[self.i_phi : self.i_phi + self.n_phase] = 0.5
         w[self.i_s : self.i_s + self.n_s] = 0.5
         if self.E:
-            self.size_arcs(w)
-            w = self.sync_start_positions(w)
+            self.size_arcs(w)  # from mid-interval starts first: they always slip
+            w = self.settle_arcs(w)
         return w
 
     def size_arcs(self, w: np.ndarray) -> int:
@@ -786,8 +798,9 @@ class Problem:
         """Free dimensions: parameters, offsets, and per events run its first plateau,
         its trigger phase (free_phase) and its first slip's start (arc_start="aged"); the
         other plateaus and starts follow from the constraints."""
-        per_run = 1 + bool(self.opts.free_phase) + bool(self.n_s)
-        return self.n_theta + self.n_off + per_run * sum(1 for r in self.runs if r.kind == "events")
+        per_run = 1 + bool(self.opts.free_phase)
+        first_starts = len(self.ev_firsts) if self.n_s else 0
+        return self.n_theta + self.n_off + per_run * sum(1 for r in self.runs if r.kind == "events") + first_starts
 
     def residual_groups(self) -> dict:
         """Index ranges of the residual vector: plateaus, slopes, triggers, creep."""
@@ -900,7 +913,9 @@ class Problem:
             ind = np.r_[np.arange(0, t0), np.arange(t1, len(r))]
             Ji = Jr[ind]
             ri = r[ind]
-            s2 = float(ri @ ri) / max(len(ri) - self.n_effective(), 1)
+            # (the first slips' starts are fixed by their own rows in the trigger group)
+            n_frames_fix = self.n_effective() - (len(self.ev_firsts) if self.n_s else 0)
+            s2 = float(ri @ ri) / max(len(ri) - n_frames_fix, 1)
             A_ = np.asarray(Ji @ X)
             meat_part = max(s2, 1.0) * (A_.T @ A_)
             Jt = Jr[t0:t1]
