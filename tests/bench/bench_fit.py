@@ -2,6 +2,7 @@
 they print what they measure.
 
     python tests/bench/bench_fit.py calibration --repeats 50 [--workers 2] [--jitter-load 0.05]
+        [--record cal.jsonl]
     python tests/bench/bench_fit.py speed [--runs 2,5,10] [--steps 2000]
 
 calibration: one noiseless design of runs is simulated once; each repeat draws new 90 nm
@@ -15,6 +16,9 @@ noise repeats of one design share one set of phase errors, and coverage over the
 coverage conditional on those phases. A few per cent of load moves the trigger
 elongation by a fraction of a step and redraws the phases: coverage over the jittered
 designs is the coverage a researcher can expect, not knowing where their cycles lock.
+``--record FILE`` appends each repeat to FILE (JSON lines) as it finishes and skips the
+repeats FILE already holds for the same coating, travel and jitter: a stopped benchmark
+resumes where it stopped.
 
 speed: joint fits of N runs of about ``--steps`` puller steps each (FOTAS, 90 nm), the
 time per fit, its growth with N (the exponent of a power-law fit; 1 = linear), and where
@@ -95,18 +99,45 @@ def _one_repeat(args):
     return out
 
 
-def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitter: float = 0.0) -> dict:
-    from concurrent.futures import ProcessPoolExecutor
+def _recorded(record, context) -> dict:
+    """Repeats a record file holds for this context (seed -> row)."""
+    done = {}
+    if record and os.path.exists(record):
+        with open(record) as f:
+            for line in f:
+                try:
+                    row = json.loads(line)
+                except json.JSONDecodeError:  # a line cut by a stop
+                    continue
+                if row.get("context") == context:
+                    done[row["seed"]] = row
+    return done
+
+
+def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitter: float = 0.0,
+                record: str | None = None) -> dict:
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
     truth = _truth(coating)
-    jobs = [(coating, travel_um, s, jitter) for s in range(repeats)]
-    rows = []
+    context = dict(coating=coating, travel_um=travel_um, jitter_load=jitter)
+    done = _recorded(record, context)
+    rows = [done[s] for s in range(repeats) if s in done]
+    if rows:
+        print(f"  {len(rows)} repeat(s) taken from {record}", file=sys.stderr)
+    jobs = [(coating, travel_um, s, jitter) for s in range(repeats) if s not in done]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers) as ex:
-        for i, row in enumerate(ex.map(_one_repeat, jobs), 1):
+        futures = {ex.submit(_one_repeat, job): job[2] for job in jobs}
+        for fut in as_completed(futures):
+            row = fut.result()
             rows.append(row)
-            print(f"\r  repeat {i}/{repeats} ({time.perf_counter() - t0:.0f} s)", end="", file=sys.stderr, flush=True)
+            if record:
+                with open(record, "a") as f:
+                    f.write(json.dumps(dict(row, context=context), default=float) + "\n")
+            print(f"\r  repeat {len(rows)}/{repeats} done (seed {futures[fut]}, "
+                  f"{time.perf_counter() - t0:.0f} s)", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
+    rows.sort(key=lambda r: r["seed"])
     ok = [r for r in rows if "error" not in r]
     summary = {}
     print(f"calibration: {coating}, {len(CAL_CONDITIONS)} runs x {travel_um:g} µm, 90 nm, start 20 % off"
@@ -183,6 +214,7 @@ def main(argv=None) -> int:
     c.add_argument("--workers", type=int, default=1)
     c.add_argument("--jitter-load", type=float, default=0.0, metavar="J",
                    help="scale each run's load by a seeded factor in [1-J, 1+J] per repeat")
+    c.add_argument("--record", metavar="FILE", help="append each repeat as it finishes; resume from FILE")
     s = sub.add_parser("speed")
     s.add_argument("--runs", default="2,5,10")
     s.add_argument("--steps", type=int, default=2000)
@@ -193,7 +225,7 @@ def main(argv=None) -> int:
     if a.what == "calibration":
         if not 0 <= a.jitter_load < 1:
             ap.error(f"--jitter-load {a.jitter_load}: must be in [0, 1)")
-        out = calibration(a.repeats, a.coating, a.travel_um, a.workers, a.jitter_load)
+        out = calibration(a.repeats, a.coating, a.travel_um, a.workers, a.jitter_load, a.record)
     else:
         out = speed([int(x) for x in a.runs.split(",")], a.steps, a.coating)
     if a.json:
