@@ -426,11 +426,10 @@ def _fit_plan(plan, coating, free, noise_nm, stick, seed):
     return {n: res[n].value for n in free}
 
 
-from identify.events import _MAD_TO_SIGMA  # noqa: E402  (the one MAD -> σ constant)
-
-
 def _spread(values: np.ndarray) -> tuple[float, float]:
     """Standard deviation and robust spread (1.4826 × MAD) of repeated estimates."""
+    from identify.events import _MAD_TO_SIGMA  # the one MAD -> σ constant
+
     if values.size < 2:
         return float("nan"), float("nan")
     return (float(np.std(values, ddof=1)),
@@ -439,7 +438,8 @@ def _spread(values: np.ndarray) -> tuple[float, float]:
 
 def _record_context(plan: ExperimentPlan, noise_nm: float, stick_speed_m_per_s: float) -> dict:
     """Per plan key, everything its fits depend on (the fit's options included, so a
-    changed default refits): a record made under other conditions is not reused (JSON round-tripped, to compare equal with what a record holds)."""
+    changed default refits): a record made under other conditions is not reused (JSON
+    round-tripped, to compare equal with what a record holds)."""
     runs_of = {"plan_stderr": plan.plan, "reference_stderr": plan.reference_plan}
     return {k: json.loads(json.dumps(dict(runs=[c.to_json() for c in v], coating=plan.coating,
                                           free=list(plan.free), noise_nm=noise_nm,

@@ -70,7 +70,7 @@ class ArcFunctions:
         return ca.integrator("arc_int", "rosenbrock", dae, 0.0, [1.0], opts)
 
     def _build(self, jac: bool, fopts: dict) -> ca.Function:
-        model, law = self.model, self.model.law
+        law = self.model.law
         a = ca.MX.sym("a", self.n_in)
         ix = self.index
         n_m = len(self.param_names)

@@ -12,8 +12,8 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -90,8 +90,9 @@ class FitOptions:
     arc_start : {"aged", "mid"}
         The contact state a slip arc starts from. ``aged`` (default): the previous
         slip's end state aged over the rest, a shooting variable per slip (its position
-        in the trigger interval) tied to it by a constraint, as in the simulator; the
-        run's first slip starts mid-interval (its initial contact is not observed).
+        in the trigger interval) tied to it by a constraint, as in the simulator; a
+        run's first slip from an estimated initial contact (uniform prior over its
+        interval: the contact before the run is not observed).
         ``mid``: every arc starts from the state whose capacity sits in the middle of its
         trigger interval (a valid trigger for any parameters, the model off by up to
         half an interval of capacity, ~0.5 nm of slip length: invisible at 90 nm, but
@@ -331,20 +332,17 @@ def _carry_horizons(old, new) -> np.ndarray:
 def _carry_solution(old, new, w: np.ndarray) -> np.ndarray:
     """The previous solution as a start for the new mode sequence: parameters, offsets
     and phases as they were; each plateau the position of the old plateau it lies in,
-    an inserted plateau its position in the frames. The arcs' start positions are left
-    mid-interval, for :meth:`Problem.sync_start_positions` once the arcs are sized."""
+    an inserted plateau its position in the frames; each run's first slip its start
+    position, the other starts mid-interval until :meth:`Problem.settle_arcs` sets them
+    from the arcs."""
     if new.n_w == old.n_w:
         return w.copy()
     v = np.zeros(new.n_w)  # every entry is set below
     v[: old.i_x] = w[: old.i_x]
     v[new.i_phi : new.i_s] = w[old.i_phi : old.i_s]
-    # start positions: each run's first slip keeps its own, the others follow from the
-    # arcs once they are sized (sync_start_positions)
     v[new.i_s : new.n_w] = 0.5
-    if new.n_s and old.n_s:
-        for ri in np.unique(new.ev_run):
-            v[new.i_s + new.ev_firsts[new.ev_run[new.ev_firsts] == ri]] = \
-                w[old.i_s + old.ev_firsts[old.ev_run[old.ev_firsts] == ri]]
+    if new.n_s and old.n_s:  # the same runs, each with its first slip, in the same order
+        v[new.i_s + new.ev_firsts] = w[old.i_s + old.ev_firsts]
     x_old = w[old.i_x : old.i_x + old.P]
     p_new = p_old = 0
     for ri, r in enumerate(new.runs):
@@ -419,7 +417,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     FitError
         When no run can be used or every solver start fails.
     """
-    from .report import FitResult, ParameterEstimate, build_result
+    from .report import build_result
 
     opts = options or FitOptions()
     say = progress or (lambda msg: log.info(msg))
@@ -527,9 +525,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         prob.ev_M = _carry_horizons(M_prev, prob)
         prob.counter = counter  # the timing report covers every solve, not just the last
         prob.build()
-        w_next = _carry_solution(M_prev, prob, best["w"])
-        prob.size_arcs(w_next)
-        w_next = prob.settle_arcs(w_next)
+        w_next = prob.settle_arcs(_carry_solution(M_prev, prob, best["w"]))
         sol = prob.solve(w_next)
         if n_added and opts.staged_start:
             # a missed slip bends the first solution (and the staged start made from

@@ -172,7 +172,7 @@ def trigger_residual(s, phase=0.5):
     return math.sqrt(12) * (s - phase)
 
 
-START_SCALE_UM = 1e-3  # slip length per unit of start position (measured ~0.3-1 nm)
+START_SCALE_UM = 1e-3  # slip length per unit of start position (measured: 0.35 nm for 0.3)
 START_MARGIN = 0.02  # fraction of the trigger interval an arc's start keeps below its top
 
 
@@ -323,8 +323,10 @@ class Problem:
         return w
 
     def settle_arcs(self, w: np.ndarray) -> np.ndarray:
-        """Start positions synced, arcs sized from them (a lower start slips further and
-        may need a longer horizon), and synced again if the horizons changed."""
+        """Arcs sized from w's starts, the starts synced to them, and the arcs sized again
+        from the synced starts (a lower start slips further and may need a longer
+        horizon), synced again if that changed a horizon."""
+        self.size_arcs(w)
         w = self.sync_start_positions(w)
         M = self.ev_M.copy()
         self.size_arcs(w)
@@ -433,9 +435,9 @@ class Problem:
                 # slip from an unobserved initial contact, uniform over the interval
                 self._s_target = self.position(z_aged, x_prev[nx], e0[nx], Pn, ops=ca)
                 s_all = w[self.i_s : self.i_s + self.n_s]
-                # (in µm of slip length, ~1 nm per unit of s, so that the feasibility
-                # tolerance means the same as for the slip lengths)
-                # (a 1x1 MX indexed by a list comes back as a row: force columns)
+                # (scaled to µm of slip length, so that the feasibility tolerance means
+                # the same as for the slip lengths; a 1x1 MX indexed by a list comes back
+                # as a row: force columns)
                 s_next = ca.reshape(s_all[self.ev_next.tolist()], -1, 1)
                 g = ca.vertcat(g, START_SCALE_UM * (s_next - ca.reshape(self._s_target, -1, 1)))
                 res.append(math.sqrt(12) * (ca.reshape(s_all[self.ev_firsts.tolist()], -1, 1) - 0.5))
@@ -529,8 +531,7 @@ class Problem:
         w[self.i_phi : self.i_phi + self.n_phase] = 0.5
         w[self.i_s : self.i_s + self.n_s] = 0.5
         if self.E:
-            self.size_arcs(w)  # from mid-interval starts first: they always slip
-            w = self.settle_arcs(w)
+            w = self.settle_arcs(w)  # sized first from the mid-interval starts: they always slip
         return w
 
     def size_arcs(self, w: np.ndarray) -> int:

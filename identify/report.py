@@ -131,7 +131,6 @@ class FitResult:
         lines.append("[[Variables]]")
         width = max(len(n) for n in self.parameters)
         for n, p in self.parameters.items():
-            sp = SPECS.get(n)
             unit = p.unit if p.unit != "-" else ""
             if not p.free:
                 lines.append(f"    {n + ':':<{width + 1}} {p.value:.6g} {unit} (fixed)")

@@ -40,7 +40,7 @@ import numpy as np
 
 from .laws import get_law
 from .model import LENGTH_UNIT, N_STATES, SPEED_UNIT, TIME_UNIT, Model, slip_integrator, slip_rhs
-from .params import ParameterError, normal_load_from_voltage, parameter_set, spec, validate_parameters
+from .params import ParameterError, normal_load_from_voltage, parameter_set, validate_parameters
 
 __all__ = [
     "RunConditions",

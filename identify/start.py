@@ -23,7 +23,6 @@ stage cannot fix where it was, for the next stage or the full NLP to decide.
 from __future__ import annotations
 
 import logging
-import math
 
 import numpy as np
 from scipy.optimize import least_squares

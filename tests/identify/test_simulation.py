@@ -2,7 +2,6 @@
 errors normalised by the tolerance, work counted rather than timed)."""
 
 import math
-import warnings
 
 import numpy as np
 import pytest
