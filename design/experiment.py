@@ -465,6 +465,20 @@ def _load_record(path: Path | None, context: dict) -> dict:
     return done
 
 
+def _job_order(keys: tuple[str, ...], repeats: int, seed: int, done) -> list[tuple[str, int]]:
+    """The (key, repeat) fits still to run, interleaved so that a stopped verification
+    leaves every plan with about as many repeats (the comparison needs all of them): the
+    key with the fewest fits so far, recorded or scheduled, goes next."""
+    pending = {k: [r for r in range(repeats) if (k, seed + r) not in done] for k in keys}
+    have = {k: repeats - len(rs) for k, rs in pending.items()}
+    jobs = []
+    while any(pending.values()):
+        k = min((k for k in keys if pending[k]), key=lambda k: have[k])
+        jobs.append((k, pending[k].pop(0)))
+        have[k] += 1
+    return jobs
+
+
 def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm: float = 90.0,
                  stick_speed_m_per_s: float = STICK_SPEED, workers: int = 1,
                  progress: Callable[[str], None] | None = None, record: str | Path | None = None) -> dict:
@@ -492,8 +506,7 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
     done = _load_record(record, context)
     if done:
         say(f"verification: {len(done)} fit(s) taken from {record}")
-    jobs = [(key, r) for key in ("plan_stderr", "reference_stderr") for r in range(repeats)
-            if (key, seed + r) not in done]
+    jobs = _job_order(tuple(runs_of), repeats, seed, done)
     rows = {k: v for k, v in done.items() if 0 <= k[1] - seed < repeats}
     fh = None
     if record is not None:

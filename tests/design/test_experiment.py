@@ -168,3 +168,18 @@ def test_verification_measures_spread(tmp_path, monkeypatch):
     # ... but not under other conditions (another noise level, another coating)
     assert len(experiment._load_record(record, experiment._record_context(plan, 90.0, experiment.STICK_SPEED))) == 6
     assert not experiment._load_record(record, experiment._record_context(plan, 60.0, experiment.STICK_SPEED))
+
+
+def test_verification_interleaves_the_plans():
+    from design.experiment import _job_order
+
+    keys = ("plan_stderr", "reference_stderr")
+    jobs = _job_order(keys, 3, 1, {})
+    assert jobs == [("plan_stderr", 0), ("reference_stderr", 0), ("plan_stderr", 1),
+                    ("reference_stderr", 1), ("plan_stderr", 2), ("reference_stderr", 2)]
+    # a record that holds two plan fits: the reference catches up first, nothing reruns
+    done = {("plan_stderr", 1): {}, ("plan_stderr", 2): {}}
+    jobs = _job_order(keys, 3, 1, done)
+    assert jobs[:2] == [("reference_stderr", 0), ("reference_stderr", 1)]
+    assert sorted(jobs) == [("plan_stderr", 2), ("reference_stderr", 0), ("reference_stderr", 1),
+                            ("reference_stderr", 2)]
