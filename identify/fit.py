@@ -97,9 +97,12 @@ class FitOptions:
         trigger interval (a valid trigger for any parameters, the model off by up to
         half an interval of capacity, ~0.5 nm of slip length: invisible at 90 nm, but
         ~10 σ on noiseless traces).
-    covariance : {"robust", "model"}
-        ``robust`` (default): trigger residuals counted cluster-robustly by run (slips of
-        a run share a phase error); ``model``: every residual independent.
+    covariance : {"robust", "cluster", "model"}
+        ``robust`` (default): the slips of a run share a phase error, as far as the
+        spread of their trigger positions says (an exchangeable correlation per run, the
+        expected meat of a sandwich); ``cluster``: cluster-robust by run from the
+        realised residuals (few runs make it run small); ``model``: every residual
+        independent.
     """
 
     law: str = "exponential"
@@ -161,8 +164,8 @@ class FitOptions:
             raise ValueError(f"arc_jacobian = {self.arc_jacobian!r}: choose 'forward' or 'central'")
         if self.arc_start not in ("aged", "mid"):
             raise ValueError(f"arc_start = {self.arc_start!r}: choose 'aged' or 'mid'")
-        if self.covariance not in ("robust", "model"):
-            raise ValueError(f"covariance = {self.covariance!r}: choose 'robust' or 'model'")
+        if self.covariance not in ("robust", "cluster", "model"):
+            raise ValueError(f"covariance = {self.covariance!r}: choose 'robust', 'cluster' or 'model'")
         if self.solver not in ("gauss-newton", "ipopt"):
             raise ValueError(f"solver = {self.solver!r}: choose 'gauss-newton' or 'ipopt'")
 

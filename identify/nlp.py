@@ -827,6 +827,15 @@ class Problem:
         need not be determined (a singular complement is legitimate: a run alone, or a
         candidate effect the baseline's parameters absorb), so a tiny ridge ε makes the
         KKT matrix invertible and is subtracted again: (C_ε)⁻¹ − εI is the exact complement."""
+        return self.information_parts(w, evaluated, meat=False)[0]
+
+    def information_parts(self, w: np.ndarray, evaluated=None, meat: bool = True):
+        """(B, M) on the scaled free parameters, the nuisances eliminated: B the
+        information of :meth:`information`, M the covariance of the reduced score under
+        the robust covariance's error model (:meth:`covariance`: the frames independent,
+        a run's triggers exchangeable). The estimator's covariance is B⁻¹MB⁻¹; for
+        independent runs B and M both add up, so a plan's prediction is assembled from
+        its runs'. M = B when there are no triggers (or ``meat=False``: None)."""
         if evaluated is None:
             self.central_differences()
         r, g, Jr, Jg = evaluated if evaluated is not None else self.evaluate(w, jac=True)
@@ -847,8 +856,19 @@ class Problem:
         sol = np.linalg.solve(K, rhs)
         C = sol[:n_th, :n_th]
         C = 0.5 * (C + C.T)
-        info = np.linalg.inv(C) - eps * np.eye(n_th)
-        return 0.5 * (info + info.T)
+        Cinv = np.linalg.inv(C)
+        info = Cinv - eps * np.eye(n_th)
+        info = 0.5 * (info + info.T)
+        if not meat:
+            return info, None
+        if not self.n_trig:
+            return info, info.copy()
+        # δθ = C_ε·u (u the reduced score): Cov(u) = C_ε⁻¹·Cov_ε(δθ)·C_ε⁻¹, exact for any ε
+        X = np.zeros((self.n_w, n_th))
+        X[keep] = sol[: len(keep)]
+        V = self._sandwich_meat(r, Jr, X, "robust")
+        M = Cinv @ V @ Cinv
+        return info, 0.5 * (M + M.T)
 
     def jacobian_scheme(self, scheme: str, rel_step: float | None = None):
         """Finite differences of the arcs from now on: ``forward`` or ``central``, with
@@ -871,19 +891,74 @@ class Problem:
         everywhere between (smooth arcs change by O(h²) = 1e-8)."""
         return self.jacobian_scheme("central", COVARIANCE_REL_STEP)
 
-    def covariance(self, w: np.ndarray, fixed_idx: Iterable[int] = (), robust: bool = True) -> np.ndarray:
+    def trigger_correlation(self, r_trig: np.ndarray) -> tuple[dict, float]:
+        """Per run, the correlation ρ of its slips' trigger errors, and their variance σ².
+
+        A slip's trigger residual is √12·(s − ½), s its position in the trigger interval:
+        uniform, so unit variance. A run whose slips recur at one phase shares one error
+        (ρ = 1); one whose phase walks through the interval has nearly independent ones
+        (ρ = 0). The spread of the residuals within a run tells which: ρ = 1 − v/σ², v its
+        within-run variance. σ² is 1 unless the pooled within-run variance exceeds it (the
+        uniform picture failing: then that). Runs with fewer than three slips: ρ = 1,
+        the cautious end.
+        """
+        runs = self.ev_run[self.ev_next]
+        rs = np.asarray(r_trig[: self.n_trig], float)
+        within, dof = 0.0, 0
+        var = {}
+        for c in np.unique(runs):
+            x = rs[runs == c]
+            if len(x) >= 3:
+                var[int(c)] = float(np.var(x, ddof=1))
+                within += var[int(c)] * (len(x) - 1)
+                dof += len(x) - 1
+        sig2 = max(1.0, within / dof) if dof else 1.0
+        rho = {int(c): float(np.clip(1.0 - var[int(c)] / sig2, 0.0, 1.0)) if int(c) in var else 1.0
+               for c in np.unique(runs)}
+        return rho, sig2
+
+    def _exchangeable_meat(self, A_t: np.ndarray, r_trig: np.ndarray, runs: np.ndarray) -> np.ndarray:
+        """Σ_c σ²[(1 − ρ_c)·Σ a_i a_iᵀ + ρ_c·(Σ a_i)(Σ a_i)ᵀ] over each run's slip triggers
+        (a_i the rows of Jₜ·X), plus the other trigger-group rows (phases, first starts:
+        one draw each) as independent unit-variance residuals."""
+        rho, sig2 = self.trigger_correlation(r_trig)
+        n = self.n_trig
+        slip_runs = runs[:n]
+        M = A_t[n:].T @ A_t[n:]
+        for c, rc in rho.items():
+            a = A_t[:n][slip_runs == c]
+            tot = a.sum(axis=0)
+            M = M + sig2 * ((1.0 - rc) * (a.T @ a) + rc * np.outer(tot, tot))
+        return M
+
+    def covariance(self, w: np.ndarray, fixed_idx: Iterable[int] = (), robust: bool | str = True) -> np.ndarray:
         """Covariance of the parameters and offsets at the solution w.
 
         Bread: the constrained Gauss–Newton system, the top-left block of
         [[JᵣᵀJᵣ, J_gᵀ], [J_g, 0]]⁻¹ (Z(ZᵀHZ)⁻¹Zᵀ, Z the null space of the constraints).
-        ``robust=False``: the model-based covariance, every residual independent with unit
-        variance. ``robust=True`` (default): a sandwich whose meat keeps the model-based
-        information of the frames (plateau levels and slopes, scaled by their reduced χ²)
-        but takes the trigger residuals cluster-robustly by run: slips of a run recur at
-        nearly the same phase of the step interval, so their errors are one shared error
-        rather than many independent ones (Liang–Zeger, with the c/(c − 1) small-sample
-        factor). NaN where the information is singular (undetermined).
+        ``robust=False`` (or ``"model"``): the model-based covariance, every residual
+        independent with unit variance. Otherwise a sandwich whose meat keeps the
+        model-based information of the frames (plateau levels and slopes, scaled by their
+        reduced χ²) but not the triggers': slips of a run recur at nearly the same phase
+        of the step interval, so their errors are largely one shared error rather than
+        many independent ones.
+
+        * ``True`` / ``"robust"`` (default): the trigger errors of a run exchangeable
+          (:meth:`trigger_correlation`): unit variance (a uniform position, √12-scaled)
+          with the correlation their spread within the run shows. It is the expected
+          meat, not the realised one, and that matters with few runs: a run's shared
+          error is largely absorbed by the parameters (as many as the runs, often), so
+          the realised cluster sums run small and ``"cluster"`` put τ's standard error
+          at 0.4 of the measured spread over redrawn loads.
+        * ``"cluster"``: cluster-robust by run from the realised residuals (Liang–Zeger,
+          with the c/(c − 1) small-sample factor): no assumption on the correlation, but
+          only as many independent draws as runs.
+
+        NaN where the information is singular (undetermined).
         """
+        mode = {True: "robust", False: "model"}.get(robust, robust)
+        if mode not in ("robust", "cluster", "model"):
+            raise ValueError(f"covariance {robust!r}: choose 'robust', 'cluster' or 'model'")
         self.central_differences()
         r, g, Jr, Jg = self.evaluate(w, jac=True)
         H = (Jr.T @ Jr).tocsc()
@@ -908,20 +983,34 @@ class Problem:
             sol = np.linalg.lstsq(Kd, rhs, rcond=1e-12)[0] if np.all(np.isfinite(Kd)) else np.full(rhs.shape, np.nan)
         X = np.zeros((self.n_w, len(cols)))
         X[keep] = sol[:n]
-        if robust and self.n_trig:
-            grp = self.residual_groups()
-            t0, t1 = grp["triggers"]
-            ind = np.r_[np.arange(0, t0), np.arange(t1, len(r))]
-            Ji = Jr[ind]
-            ri = r[ind]
-            # (the first slips' starts are fixed by their own rows in the trigger group)
-            n_frames_fix = self.n_effective() - (len(self.ev_firsts) if self.n_s else 0)
-            s2 = float(ri @ ri) / max(len(ri) - n_frames_fix, 1)
-            A_ = np.asarray(Ji @ X)
-            meat_part = max(s2, 1.0) * (A_.T @ A_)
-            Jt = Jr[t0:t1]
+        if mode != "model" and self.n_trig:
+            Cw = self._sandwich_meat(r, Jr, X, mode)
+        else:
+            Cw = sol[cols, :]
+        C = np.full((self.n_theta + self.n_off,) * 2, np.nan)
+        for a_, i in enumerate(want):
+            for b_, j in enumerate(want):
+                C[i, j] = Cw[a_, b_]
+        return C
+
+    def _sandwich_meat(self, r, Jr, X, mode: str) -> np.ndarray:
+        """Xᵀ·Cov(Jᵀr)·X: the frames (and creep means) independent, scaled by their
+        reduced χ² when above 1; the triggers exchangeable within a run (``robust``) or
+        cluster-robust from the realised residuals (``cluster``)."""
+        grp = self.residual_groups()
+        t0, t1 = grp["triggers"]
+        ind = np.r_[np.arange(0, t0), np.arange(t1, len(r))]
+        Ji = Jr[ind]
+        ri = r[ind]
+        # (the first slips' starts are fixed by their own rows in the trigger group)
+        n_frames_fix = self.n_effective() - (len(self.ev_firsts) if self.n_s else 0)
+        s2 = float(ri @ ri) / max(len(ri) - n_frames_fix, 1)
+        A_ = np.asarray(Ji @ X)
+        meat_part = max(s2, 1.0) * (A_.T @ A_)
+        Jt = Jr[t0:t1]
+        runs = self.trigger_runs()
+        if mode == "cluster":
             scores = np.asarray(Jt.multiply(r[t0:t1][:, None]).tocsr().toarray())  # per-residual scores
-            runs = self.trigger_runs()
             clusters = np.unique(runs)
             S = np.zeros((len(clusters), self.n_w))
             for ci, c in enumerate(clusters):
@@ -930,9 +1019,5 @@ class Problem:
             nc = len(clusters)
             Cw = meat_part + (nc / max(nc - 1, 1)) * (B.T @ B)
         else:
-            Cw = sol[cols, :]
-        C = np.full((self.n_theta + self.n_off,) * 2, np.nan)
-        for a_, i in enumerate(want):
-            for b_, j in enumerate(want):
-                C[i, j] = Cw[a_, b_]
-        return C
+            Cw = meat_part + self._exchangeable_meat(np.asarray(Jt @ X), r[t0:t1], runs)
+        return Cw

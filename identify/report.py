@@ -104,6 +104,18 @@ class FitResult:
     def free(self) -> list:
         return [n for n, p in self.parameters.items() if p.free]
 
+    def uncertainty(self, covariance: str) -> dict:
+        """Standard errors and 95 % intervals of the free parameters under another
+        covariance than the fit's option (``robust``, ``cluster`` or ``model``, see
+        :class:`FitOptions`): name -> {stderr, ci95}. The fit itself is unchanged."""
+        if self.problem is None or self.w is None:
+            raise ValueError("uncertainty: this result carries no problem (read from JSON?)")
+        prob, w = self.problem, self.w
+        th = w[: prob.n_theta]
+        C, scale = _covariance(prob, w, covariance, self.redchi)
+        return {n: dict(stderr=se, ci95=list(ci) if ci else None)
+                for n, (se, _, ci) in zip(prob.theta.names, _stderrs(prob.theta, th, C, scale))}
+
     # ---------------------------------------------------------------- text
     def report(self, show_correlations: float = 0.5) -> str:
         s = self.solver
@@ -208,6 +220,27 @@ def _scaled_ci(theta, sigma, tm, i):
     return (float(tm.scale[i] * lo), float(tm.scale[i] * hi))
 
 
+def _covariance(prob, w, mode: str, redchi: float):
+    """(covariance of the scaled parameters, the factor it is used with): the sandwich
+    carries its own scale; the model-based one is scaled by χ²_red (scale_covariance)."""
+    C = prob.covariance(w, robust=mode)
+    scale = (redchi if prob.opts.scale_covariance else 1.0) if mode == "model" else 1.0
+    return C, scale
+
+
+def _stderrs(tm, th, C, scale) -> list:
+    """Per parameter (stderr in natural units or None, σ on the fit scale, 95 % interval)."""
+    d = tm.jacobian_diag(th)
+    out = []
+    for i in range(len(tm.names)):
+        var = C[i, i] * scale if np.isfinite(C[i, i]) else np.nan
+        sig_th = math.sqrt(var) if var >= 0 and np.isfinite(var) else float("nan")
+        se = abs(d[i]) * sig_th if np.isfinite(sig_th) else None
+        ci = _scaled_ci(th[i], sig_th, tm, i) if se is not None else None
+        out.append((se, sig_th, ci))
+    return out
+
+
 def build_result(prob, best: dict, results: list, excluded: list, start: Mapping, start_source: str,
                  coating: str, true_values: Mapping | None, wall_s: float) -> FitResult:
     """Statistics, covariance, flags and the run table of a solved :class:`Problem`."""
@@ -219,19 +252,13 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
     k = prob.n_effective()
     dof = max(n_obs - k, 1)
     redchi = chi2 / dof
-    robust = getattr(prob.opts, "covariance", "robust") == "robust"
-    C = prob.covariance(w, robust=robust)
-    # the robust covariance carries its own scale; the model-based one is scaled by χ²_red
-    scale = (redchi if prob.opts.scale_covariance else 1.0) if not robust else 1.0
+    C, scale = _covariance(prob, w, getattr(prob.opts, "covariance", "robust"), redchi)
     th = w[: prob.n_theta]
     vals = tm.from_scaled(th)
     d = tm.jacobian_diag(th)
     params: dict = {}
     cov_nat = np.full((prob.n_theta, prob.n_theta), np.nan)
-    for i, n in enumerate(tm.names):
-        var = C[i, i] * scale if np.isfinite(C[i, i]) else np.nan
-        sig_th = math.sqrt(var) if var >= 0 and np.isfinite(var) else float("nan")
-        se = abs(d[i]) * sig_th if np.isfinite(sig_th) else None
+    for i, (n, (se, sig_th, ci)) in enumerate(zip(tm.names, _stderrs(tm, th, C, scale))):
         flag = None
         rng = tm.hi[i] - tm.lo[i]
         if min(th[i] - tm.lo[i], tm.hi[i] - th[i]) < 1e-6 * max(rng, 1.0):
@@ -240,7 +267,6 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
             flag = "undetermined: no finite standard error (singular information)"
         elif vals[i] != 0 and abs(se / vals[i]) > UNDETERMINED_REL:
             flag = f"undetermined: standard error {100 * abs(se / vals[i]):.0f} % of the value"
-        ci = _scaled_ci(th[i], sig_th, tm, i) if se is not None and np.isfinite(sig_th) else None
         params[n] = ParameterEstimate(
             name=n, value=float(vals[i]), stderr=se, ci95=ci, free=True, unit=SPECS[n].unit,
             init=float(start.get(n, np.nan)), flag=flag,

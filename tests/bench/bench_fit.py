@@ -60,6 +60,9 @@ def _simulate(conditions, coating, travel_um):
                 for k, nb, fp in conditions]
 
 
+COVARIANCES = ("robust", "cluster", "model")
+
+
 def _start(truth):
     """20 % off, each parameter pushed the way that makes the fit work hardest."""
     return {"mu_max": truth["mu_max"] / 1.2, "mu_min": truth["mu_min"] * 1.2,
@@ -103,9 +106,12 @@ def _one_repeat(args):
         return dict(seed=seed, error=f"{type(err).__name__}: {err}")
     out = dict(seed=seed, wall_s=time.perf_counter() - t0, success=bool(res.solver["success"]),
                iterations=res.solver["iterations"], normal_loads_uN=[c[1] for c in conds])
+    # every covariance at the same solution: one calibration measures them all
+    other = {mode: res.uncertainty(mode) for mode in COVARIANCES}
     for n in FREE:
         p = res[n]
-        out[n] = dict(value=p.value, stderr=p.stderr, ci95=list(p.ci95) if p.ci95 else None)
+        out[n] = dict(value=p.value, stderr=p.stderr, ci95=list(p.ci95) if p.ci95 else None,
+                      by_covariance={mode: other[mode][n] for mode in COVARIANCES})
     return out
 
 
@@ -130,7 +136,7 @@ def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitt
 
     truth = _truth(coating)
     context = dict(coating=coating, travel_um=travel_um, jitter_load=jitter,
-                   fit_options=repr(_fit_options(_start(truth))))
+                   fit_options=repr(_fit_options(_start(truth))), covariances=list(COVARIANCES))
     done = _recorded(record, context)
     rows = [done[s] for s in range(repeats) if s in done]
     if rows:
@@ -169,6 +175,19 @@ def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitt
         print(f"  {n:8} {100 * s['coverage']:8.0f}% {100 * s['mean_rel_error']:+8.2f}% "
               f"{100 * (s['sd_rel'] or np.nan):8.2f}% {100 * s['mean_rel_stderr']:8.2f}% "
               f"{(s['sd_rel'] or np.nan) / s['mean_rel_stderr']:6.2f} {s['median_z'] or np.nan:+6.2f}")
+    have = [r for r in ok if all("by_covariance" in r[n] for n in FREE)]
+    if have:
+        print(f"  coverage by covariance ({len(have)} repeats; sd(est)/median se):")
+        for mode in COVARIANCES:
+            cells = []
+            for n in FREE:
+                bc = [r[n]["by_covariance"][mode] for r in have]
+                cov = np.mean([b["ci95"] is not None and b["ci95"][0] <= truth[n] <= b["ci95"][1] for b in bc])
+                se = np.array([b["stderr"] if b["stderr"] is not None else np.nan for b in bc], float)
+                sd = np.std([r[n]["value"] for r in have], ddof=1) if len(have) > 1 else np.nan
+                cells.append(f"{n} {100 * cov:3.0f}% ({sd / np.nanmedian(se):4.2f})")
+                summary[n].setdefault("coverage_by_covariance", {})[mode] = float(cov)
+            print(f"    {mode:8} " + "  ".join(cells))
     walls = [r["wall_s"] for r in ok]
     if walls:
         print(f"  time per fit: median {np.median(walls):.1f} s (workers {workers})")

@@ -156,6 +156,24 @@ def test_nothing_usable_raises(tmp_path):
         fit([short], options=FitOptions(fixed={"v_stick": V_STICK}))
 
 
+def test_uncertainty_under_other_covariances(small_fit):
+    res = small_fit
+    own = res.uncertainty("robust")  # the fit's own option
+    for n in res.free:
+        assert own[n]["stderr"] == pytest.approx(res[n].stderr, rel=1e-9)
+        assert own[n]["ci95"] == pytest.approx(list(res[n].ci95), rel=1e-9)
+    for mode in ("cluster", "model"):
+        other = res.uncertainty(mode)
+        for n in res.free:
+            se, ci = other[n]["stderr"], other[n]["ci95"]
+            assert np.isfinite(se) and se > 0 and ci[0] < res[n].value < ci[1]
+    # the phase-locked triggers carry less information than independent ones: the
+    # sandwich is wider than the model-based covariance for the trigger-bound μmax
+    assert own["mu_max"]["stderr"] > res.uncertainty("model")["mu_max"]["stderr"]
+    with pytest.raises(ValueError, match="robust', 'cluster' or 'model"):
+        res.uncertainty("sandwich")
+
+
 @pytest.mark.parametrize("kwargs, match", [
     (dict(free=("mu_max", "nonsense")), "nonsense"),
     (dict(free=("mu_max",), fixed={"mu_max": 0.7}), "both free and fixed"),
@@ -163,6 +181,7 @@ def test_nothing_usable_raises(tmp_path):
     (dict(solver="bfgs"), "solver"),
     (dict(arc_jacobian="backward"), "arc_jacobian"),
     (dict(law="power"), "power"),
+    (dict(covariance="sandwich"), "robust', 'cluster' or 'model"),
 ])
 def test_bad_options(kwargs, match):
     with pytest.raises(ValueError, match=match):
