@@ -191,6 +191,9 @@ def _add_experiment(sub) -> None:
                    help="simulate + identify the plan and the reference N times each (slow)")
     p.add_argument("--seed", type=int, default=0, help="seed of the verification noise")
     p.add_argument("--workers", type=int, default=1, help="processes for the verification fits")
+    p.add_argument("--verify-jitter", type=float, default=None, metavar="J",
+                   help="verification: draw each run's load within ±J of nominal per repeat, as real "
+                        "replicates differ (redraws the step phases slips lock to; default 0.05, 0: none)")
     p.add_argument("--verify-record", type=Path, default=None, metavar="FILE",
                    help="JSON lines, one per finished verification fit; a rerun resumes from it "
                         "(default: OUT.verify.jsonl beside --json OUT)")
@@ -207,6 +210,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         raise ValueError(f"--criterion {args.criterion!r}: no such criterion; choose one of {', '.join(CRITERIA)}")
     if args.runs < 1:
         raise ValueError(f"--runs {args.runs}: must be at least 1")
+    if args.verify_jitter is not None and not (0 <= args.verify_jitter < 1):
+        raise ValueError(f"--verify-jitter {args.verify_jitter}: a fraction of the load, 0 <= J < 1")
     try:
         springs = [float(x) for x in args.springs.split(",") if x.strip()]
     except ValueError:
@@ -229,7 +234,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         record = args.verify_record
         if record is None and args.json is not None:
             record = args.json.with_suffix(".verify.jsonl")
-        verify_plans(plan, args.verify, seed=args.seed, workers=args.workers, progress=say, record=record)
+        jitter = {} if args.verify_jitter is None else {"jitter_load": args.verify_jitter}
+        verify_plans(plan, args.verify, seed=args.seed, workers=args.workers, progress=say, record=record, **jitter)
     print(plan.report())
     _write_outputs(args, plan)
     return 0

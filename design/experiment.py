@@ -25,17 +25,18 @@ import itertools
 import json
 import math
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["Candidate", "CRITERIA", "ExperimentPlan", "run_information", "run_problem", "design_experiment",
-           "paper_plan", "prior_from_fit", "verify_plans"]
+__all__ = ["Candidate", "CRITERIA", "ExperimentPlan", "run_information", "run_information_parts", "run_problem",
+           "design_experiment", "paper_plan", "prior_from_fit", "verify_plans"]
 
 CRITERIA = ("D", "A", "E")
 DEFAULT_FREE = ("mu_max", "mu_min", "tau", "A")
+JITTER_LOAD = 0.05  # verification: replicate loads within ±5 % (redraws the lock phases)
 STICK_SPEED = 1e-5  # the simulator's stick option (README): as written, most of the grid creeps
 PAPER_LOADS_UN = (0.98, 8.0, 18.1)
 PAPER_FPS_HZ = (10.0, 100.0, 500.0, 1000.0)
@@ -73,18 +74,36 @@ def _simulate(c: Candidate, coating: str, params: Mapping[str, float], stick_spe
 def run_information(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, float] | None = None,
                     free: Sequence[str] = DEFAULT_FREE, noise_nm: float = 90.0,
                     stick_speed_m_per_s: float = STICK_SPEED) -> tuple[np.ndarray, dict]:
-    """Fisher information of one run on ``free`` (natural units), and a summary.
+    """Fisher information of one run on ``free`` (natural units), and a summary: every
+    frame and every trigger an independent observation.
 
     Zero information (with the reason in the summary) when the run shows neither
     resolvable slips nor steady creep at the nominal parameters.
     """
+    I, _, summary = run_information_parts(c, coating, params=params, free=free, noise_nm=noise_nm,
+                                          stick_speed_m_per_s=stick_speed_m_per_s, meat=False)
+    return I, summary
+
+
+def run_information_parts(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, float] | None = None,
+                          free: Sequence[str] = DEFAULT_FREE, noise_nm: float = 90.0,
+                          stick_speed_m_per_s: float = STICK_SPEED, meat: bool = True):
+    """(B, M, summary) of one run on ``free`` (natural units): B its Fisher information
+    (:func:`run_information`), M the covariance of its score under the error model the
+    fit's robust covariance uses — a run's slips recur at nearly one phase of the step
+    interval, so their trigger errors are largely one shared error (exchangeable, with
+    the correlation the simulated positions show). Over a plan B and M add up and the
+    estimator's covariance is B⁻¹MB⁻¹: what the fit will report, and (measured) what its
+    estimates spread by, where B⁻¹ alone promised up to 1.8 times less."""
     prob, w, summary = run_problem(c, coating, params=params, free=free, noise_nm=noise_nm,
                                    stick_speed_m_per_s=stick_speed_m_per_s)
+    n = len(free)
     if prob is None:
-        return np.zeros((len(free),) * 2), summary
-    I_scaled = _schur_information(prob, w)
+        return np.zeros((n, n)), (np.zeros((n, n)) if meat else None), summary
+    B, M = _schur_information(prob, w, meat) if meat else (_schur_information(prob, w), None)
     D = prob.theta.jacobian_diag(w[: prob.n_theta])  # d natural / d scaled
-    return I_scaled / np.outer(D, D), summary
+    DD = np.outer(D, D)
+    return B / DD, (M / DD if meat else None), summary
 
 
 def run_problem(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, float] | None = None,
@@ -133,10 +152,11 @@ def run_problem(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, fl
     return prob, w, dict(info, used=True, reason=None, kind=rd.kind, n_events=int(prob.E))
 
 
-def _schur_information(prob, w) -> np.ndarray:
-    """Information on the scaled parameters, the nuisances eliminated (the NLP's own)."""
+def _schur_information(prob, w, meat: bool = False):
+    """Information on the scaled parameters, the nuisances eliminated (the NLP's own);
+    with ``meat``, (information, score covariance)."""
     try:
-        return prob.information(w)
+        return prob.information_parts(w) if meat else prob.information(w)
     except ValueError as err:
         raise ValueError(f"the run's {err} (nominal parameters)") from None
 
@@ -155,6 +175,16 @@ def _criterion(I_rel: np.ndarray, name: str) -> float:
     if name == "E":
         return float(np.linalg.eigvalsh(I_rel)[0])
     raise ValueError(f"criterion {name!r}: choose one of {', '.join(CRITERIA)}")
+
+
+def _effective(B: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """B·M⁻¹·B: the inverse of the sandwich covariance B⁻¹MB⁻¹ (what the criteria and the
+    predicted standard errors are taken of); zero where M is singular."""
+    try:
+        E = B @ np.linalg.solve(M, B)
+    except np.linalg.LinAlgError:
+        return np.zeros_like(B)
+    return 0.5 * (E + E.T)
 
 
 def _stderr(I_nat: np.ndarray) -> np.ndarray:
@@ -182,6 +212,9 @@ class ExperimentPlan:
     reference_plan: list
     reference_stderr: dict
     reference_criterion_value: float
+    # B⁻¹ alone: every trigger an independent observation (what phase locking undoes)
+    fisher_stderr: dict = field(default_factory=dict)
+    reference_fisher_stderr: dict = field(default_factory=dict)
     candidates: list = field(default_factory=list)  # (Candidate, summary)
     enumeration: dict = field(default_factory=dict)
     prior_used: bool = False
@@ -203,25 +236,35 @@ class ExperimentPlan:
         lines.append("  reference (the paper's conditions, same run count):")
         for c in self.reference_plan:
             lines.append(f"    {c.label()}, travel {c.travel_um:g} µm")
+        lines.append("  predicted standard errors (a run's slips sharing their phase error; in brackets the")
+        lines.append("  Fisher information alone, every trigger independent):")
         lines.append(f"  {'parameter':10} {'plan stderr':>12} {'reference':>12} {'ratio':>7}")
         for n in self.free:
             a, b = self.predicted_stderr[n], self.reference_stderr[n]
-            lines.append(f"  {n:10} {a:12.4g} {b:12.4g} {b / a if a else float('nan'):7.2f}")
+            fa, fb = self.fisher_stderr.get(n, float("nan")), self.reference_fisher_stderr.get(n, float("nan"))
+            lines.append(f"  {n:10} {a:12.4g} {b:12.4g} {b / a if a else float('nan'):7.2f}"
+                         f"   ({fa:.3g}, {fb:.3g})")
         gp = self._gmean(self.predicted_stderr, self.nominal)
         gr = self._gmean(self.reference_stderr, self.nominal)
         lines.append(f"  geometric-mean relative stderr: plan {gp:.4g}, reference {gr:.4g} "
                      f"(reference / plan = {gr / gp:.2f})")
         if self.monte_carlo:
             mc = self.monte_carlo
-            lines.append(f"  Monte Carlo ({mc['repeats']} seeded repeats each; failed fits: plan "
-                         f"{mc['plan_failed']}, reference {mc['reference_failed']}), measured spread "
-                         "(sd / robust 1.4826·MAD) against the predicted stderr:")
+            jit = mc.get("jitter_load", 0.0)
+            lines.append(f"  Monte Carlo ({mc['repeats']} seeded repeats each"
+                         + (f", loads within ±{100 * jit:g} %" if jit else "")
+                         + f"; failed fits: plan {mc['plan_failed']}, reference {mc['reference_failed']}), "
+                         "measured spread (sd / robust 1.4826·MAD) against the predicted stderr:")
             for n in self.free:
                 lines.append(
                     f"    {n:10} plan {mc['plan_stderr'][n]:.3g} / {mc['plan_robust_stderr'][n]:.3g} "
                     f"(predicted {self.predicted_stderr[n]:.3g}, x{mc['plan_measured_over_predicted'][n]:.2f}); "
                     f"reference {mc['reference_stderr'][n]:.3g} / {mc['reference_robust_stderr'][n]:.3g} "
                     f"(predicted {self.reference_stderr[n]:.3g}, x{mc['reference_measured_over_predicted'][n]:.2f})")
+            if "plan_coverage" in mc:
+                cov = lambda c: ", ".join(f"{n} {100 * c[n]:.0f} %" for n in self.free)  # noqa: E731
+                lines.append(f"  the fits' own 95 % intervals hold the truth: plan {cov(mc['plan_coverage'])}; "
+                             f"reference {cov(mc['reference_coverage'])}")
             lines.append(f"  measured geometric-mean RMS error, reference / plan = {mc['geometric_mean_ratio']:.2f}")
         unused = [(c, s) for c, s in self.candidates if not s.get("used")]
         if unused:
@@ -233,9 +276,10 @@ class ExperimentPlan:
         return dict(
             coating=self.coating, criterion=self.criterion, free=list(self.free), nominal=self.nominal,
             plan=[c.to_json() for c in self.plan], predicted_stderr=self.predicted_stderr,
-            criterion_value=self.criterion_value,
+            fisher_stderr=self.fisher_stderr, criterion_value=self.criterion_value,
             reference_plan=dict(plan=[c.to_json() for c in self.reference_plan],
                                 predicted_stderr=self.reference_stderr,
+                                fisher_stderr=self.reference_fisher_stderr,
                                 criterion_value=self.reference_criterion_value),
             enumeration=self.enumeration, prior_used=self.prior_used,
             candidates=[dict(c.to_json(), **{k: v for k, v in s.items() if k != "information"})
@@ -310,14 +354,16 @@ def design_experiment(n_runs: int, coating: str = "FOTAS", *, springs: Sequence[
     infos: dict = {}
 
     def info_of(c: Candidate):
+        """(B, M) of the run: its information and its score covariance."""
         if c not in infos:
             try:
-                I, s = run_information(c, coating, free=free, noise_nm=noise_nm,
-                                       stick_speed_m_per_s=stick_speed_m_per_s)
+                B, M, s = run_information_parts(c, coating, free=free, noise_nm=noise_nm,
+                                                stick_speed_m_per_s=stick_speed_m_per_s)
             except Exception as err:  # one candidate that fails to simulate is dropped, not fatal
-                I, s = np.zeros((len(free),) * 2), dict(used=False, reason=f"{type(err).__name__}: {err}")
-            infos[c] = (I, s)
-        return infos[c][0]
+                B = M = np.zeros((len(free),) * 2)
+                s = dict(used=False, reason=f"{type(err).__name__}: {err}")
+            infos[c] = (B, M, s)
+        return infos[c][:2]
 
     for i, c in enumerate(cands, 1):
         say(f"information of candidate {i}/{len(cands)}: {c.label()}")
@@ -326,11 +372,18 @@ def design_experiment(n_runs: int, coating: str = "FOTAS", *, springs: Sequence[
         info_of(c)
     I0 = np.zeros((len(free),) * 2) if prior_information is None else np.asarray(prior_information, float)
     rel = lambda I: I * np.outer(scale, scale)  # noqa: E731 - information on θ/θ_nominal
-    usable = [c for c in cands if infos[c][1].get("used")]
+    usable = [c for c in cands if infos[c][2].get("used")]
     if not usable:
         raise ValueError("no candidate run carries information (all creep-free of slips or failed)")
     mats = [info_of(c) for c in usable]
-    value = lambda idx: _criterion(rel(I0 + sum(mats[i] for i in idx)), criterion)  # noqa: E731
+
+    def effective(idx, extra=0.0):
+        # a prior (a fit's covariance inverted) counts as efficient information: B = M
+        B = I0 + extra + sum(mats[i][0] for i in idx)
+        M = I0 + extra + sum(mats[i][1] for i in idx)
+        return _effective(B, M)
+
+    value = lambda idx: _criterion(rel(effective(idx)), criterion)  # noqa: E731
     n_plans = math.comb(len(usable) + n_runs - 1, n_runs)
     evaluated = 0
     if n_plans <= max_enumerate:
@@ -346,8 +399,7 @@ def design_experiment(n_runs: int, coating: str = "FOTAS", *, springs: Sequence[
         ridge = 1e-9 * np.eye(len(free))
         best = []
         for _ in range(n_runs):
-            gains = [_criterion(rel(I0 + ridge + sum(mats[i] for i in best) + mats[j]), criterion)
-                     for j in range(len(usable))]
+            gains = [_criterion(rel(effective(best + [j], ridge)), criterion) for j in range(len(usable))]
             evaluated += len(gains)
             best.append(int(np.argmax(gains)))
         best_v = value(best)
@@ -364,15 +416,18 @@ def design_experiment(n_runs: int, coating: str = "FOTAS", *, springs: Sequence[
                     if v > best_v + 1e-12:
                         best, best_v, improved = trial, v, True
     plan = [usable[i] for i in sorted(best)]
-    I_plan = I0 + sum(mats[i] for i in best)
-    I_ref = I0 + sum(info_of(c) for c in ref)
-    se = dict(zip(free, _stderr(I_plan).tolist()))
+    B_ref = I0 + sum(info_of(c)[0] for c in ref)
+    I_ref = _effective(B_ref, I0 + sum(info_of(c)[1] for c in ref))
+    B_plan = I0 + sum(mats[i][0] for i in best)
+    se = dict(zip(free, _stderr(effective(best)).tolist()))
     se_ref = dict(zip(free, _stderr(I_ref).tolist()))
     return ExperimentPlan(
         coating=coating, criterion=criterion, free=free, nominal=nominal, plan=plan, predicted_stderr=se,
         criterion_value=float(best_v), reference_plan=ref, reference_stderr=se_ref,
         reference_criterion_value=float(_criterion(rel(I_ref), criterion)),
-        candidates=[(c, dict(infos[c][1])) for c in cands],
+        fisher_stderr=dict(zip(free, _stderr(B_plan).tolist())),
+        reference_fisher_stderr=dict(zip(free, _stderr(B_ref).tolist())),
+        candidates=[(c, dict(infos[c][2])) for c in cands],
         enumeration=dict(method=method, plans_evaluated=evaluated, plans_possible=n_plans,
                          best_value_enumerated=float(best_v) if method.startswith("exhaustive") else None),
         prior_used=prior_information is not None,
@@ -413,17 +468,33 @@ def _fit_options(free, stick):
     return FitOptions(free=tuple(free), fixed={"v_stick": stick})
 
 
-def _fit_plan(plan, coating, free, noise_nm, stick, seed):
+def _jittered(plan, seed: int, jitter: float) -> list:
+    """The plan's runs with each load drawn within ±jitter of its nominal value (seeded
+    by the repeat): replicates of a real run differ a little, and that is what redraws
+    the step phases at which its slips lock. (Without it every repeat of a run has the
+    same phases and only the frame noise varies: the Monte Carlo would measure less
+    than the estimates' spread over real replicates.)"""
+    if not jitter:
+        return list(plan)
+    f = np.random.default_rng([seed, 20261122]).uniform(1 - jitter, 1 + jitter, len(plan))
+    return [replace(c, normal_load_uN=float(c.normal_load_uN * fi)) for c, fi in zip(plan, f)]
+
+
+def _fit_plan(plan, coating, free, noise_nm, stick, seed, jitter=0.0):
+    """One repeat: simulate (the loads jittered), add noise, fit; the estimates and the
+    fit's own standard errors and 95 % intervals (its robust covariance)."""
     from identify import fit
 
     traces = []
-    for i, c in enumerate(plan):
+    for i, c in enumerate(_jittered(plan, seed, jitter)):
         sim = _simulate(c, coating, {}, stick)
         traces.append(sim.sample(noise_nm=noise_nm, seed=10_000 * seed + i, name=f"run{i}"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = fit(traces, coating=coating, options=_fit_options(free, stick))
-    return {n: res[n].value for n in free}
+    return dict(estimates={n: res[n].value for n in free},
+                stderr={n: res[n].stderr for n in free},
+                ci95={n: list(res[n].ci95) if res[n].ci95 else None for n in free})
 
 
 def _spread(values: np.ndarray) -> tuple[float, float]:
@@ -436,7 +507,8 @@ def _spread(values: np.ndarray) -> tuple[float, float]:
             float(_MAD_TO_SIGMA * np.median(np.abs(values - np.median(values)))))
 
 
-def _record_context(plan: ExperimentPlan, noise_nm: float, stick_speed_m_per_s: float) -> dict:
+def _record_context(plan: ExperimentPlan, noise_nm: float, stick_speed_m_per_s: float,
+                    jitter_load: float = 0.0) -> dict:
     """Per plan key, everything its fits depend on (the fit's options included, so a
     changed default refits): a record made under other conditions is not reused (JSON
     round-tripped, to compare equal with what a record holds)."""
@@ -444,7 +516,8 @@ def _record_context(plan: ExperimentPlan, noise_nm: float, stick_speed_m_per_s: 
     return {k: json.loads(json.dumps(dict(runs=[c.to_json() for c in v], coating=plan.coating,
                                           free=list(plan.free), noise_nm=noise_nm,
                                           stick_speed_m_per_s=stick_speed_m_per_s,
-                                          fit_options=repr(_fit_options(plan.free, stick_speed_m_per_s)))))
+                                          fit_options=repr(_fit_options(plan.free, stick_speed_m_per_s)),
+                                          **({"jitter_load": jitter_load} if jitter_load else {}))))
             for k, v in runs_of.items()}
 
 
@@ -481,10 +554,16 @@ def _job_order(keys: tuple[str, ...], repeats: int, seed: int, done) -> list[tup
 
 def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm: float = 90.0,
                  stick_speed_m_per_s: float = STICK_SPEED, workers: int = 1,
-                 progress: Callable[[str], None] | None = None, record: str | Path | None = None) -> dict:
+                 progress: Callable[[str], None] | None = None, record: str | Path | None = None,
+                 jitter_load: float = JITTER_LOAD) -> dict:
     """Simulate and identify the plan and the reference ``repeats`` times each (seeded
     noise, repeat r uses seed + r for both plans); the measured spread of the estimates
     per parameter. Fits run in ``workers`` processes.
+
+    ``jitter_load``: each repeat draws every run's load within ± this fraction of its
+    nominal value (the trace carries the drawn load), as real replicates differ; it
+    redraws the step phases the slips lock to, which the predicted standard errors
+    count as random. 0: every repeat simulates the nominal runs.
 
     ``record``: a JSON-lines file that gets one line per finished fit, as it finishes;
     fits already in it (same plan, same seed) are not run again, so a stopped
@@ -496,13 +575,14 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
     ``*_rms_error`` (against the nominal values the data were made with),
     ``*_measured_over_predicted`` (robust spread / predicted standard error),
     ``*_failed``, ``geometric_mean_ratio`` (reference / plan, of the RMS errors),
-    ``*_estimates`` (per fit) and ``repeats``.
+    ``*_coverage`` (share of the fits whose own 95 % interval holds the nominal value),
+    ``*_estimates`` (per fit), ``repeats`` and ``jitter_load``.
     """
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     say = progress or (lambda msg: None)
     runs_of = {"plan_stderr": plan.plan, "reference_stderr": plan.reference_plan}
-    context = _record_context(plan, noise_nm, stick_speed_m_per_s)
+    context = _record_context(plan, noise_nm, stick_speed_m_per_s, jitter_load)
     done = _load_record(record, context)
     if done:
         say(f"verification: {len(done)} fit(s) taken from {record}")
@@ -521,11 +601,11 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
     try:
         with ProcessPoolExecutor(max_workers=max(int(workers), 1)) as ex:
             futs = {ex.submit(_fit_plan, runs_of[key], plan.coating, plan.free, noise_nm, stick_speed_m_per_s,
-                              seed + r): (key, r) for key, r in jobs}
+                              seed + r, jitter_load): (key, r) for key, r in jobs}
             for i, f in enumerate(as_completed(futs), 1):
                 key, r = futs[f]
                 try:
-                    row = dict(key=key, seed=seed + r, context=context[key], estimates=f.result())
+                    row = dict(key=key, seed=seed + r, context=context[key], **f.result())
                 except Exception as err:  # a failed repeat is counted, not fatal (and retried on a rerun)
                     row = dict(key=key, seed=seed + r, context=context[key], error=f"{type(err).__name__}: {err}")
                     say(f"  {key.split('_')[0]} repeat {r + 1} failed: {err}")
@@ -539,10 +619,14 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
             fh.close()
     out: dict = {}
     for key, predicted in (("plan_stderr", plan.predicted_stderr), ("reference_stderr", plan.reference_stderr)):
-        ok = [row["estimates"] for (k, _), row in sorted(rows.items()) if k == key and "estimates" in row]
+        good = [row for (k, _), row in sorted(rows.items()) if k == key and "estimates" in row]
+        ok = [row["estimates"] for row in good]
         pre = key.replace("_stderr", "")
-        sd, robust, mean, rms, ratio = {}, {}, {}, {}, {}
+        sd, robust, mean, rms, ratio, cover = {}, {}, {}, {}, {}, {}
         for n in plan.free:
+            cis = [row["ci95"][n] for row in good if row.get("ci95")]
+            cover[n] = (float(np.mean([ci is not None and ci[0] <= plan.nominal[n] <= ci[1] for ci in cis]))
+                        if cis else float("nan"))
             v = np.array([e[n] for e in ok], float)
             sd[n], robust[n] = _spread(v)
             mean[n] = float(v.mean()) if v.size else float("nan")
@@ -553,6 +637,7 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
         out[f"{pre}_mean"] = mean
         out[f"{pre}_rms_error"] = rms
         out[f"{pre}_measured_over_predicted"] = ratio
+        out[f"{pre}_coverage"] = cover
         out[f"{pre}_failed"] = sum(1 for (k, _), row in rows.items() if k == key and "error" in row)
         out[f"{pre}_estimates"] = ok
     g_plan = plan._gmean(out["plan_rms_error"], plan.nominal)
@@ -560,5 +645,6 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
     out["geometric_mean_ratio"] = g_ref / g_plan if g_plan and np.isfinite(g_plan) else float("nan")
     out["repeats"] = repeats
     out["seed"] = seed
+    out["jitter_load"] = jitter_load
     plan.monte_carlo = out
     return out

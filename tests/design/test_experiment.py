@@ -7,15 +7,16 @@ import numpy as np
 import pytest
 
 from design.cli import main
-from design.experiment import (Candidate, _schur_information, design_experiment, prior_from_fit,
-                               run_information, run_problem)
+from design.experiment import (Candidate, _effective, _schur_information, design_experiment, prior_from_fit,
+                               run_information, run_information_parts, run_problem)
 
 SMALL = [Candidate(2.13, 5, 100, 12.0), Candidate(20.3, 30, 30, 12.0), Candidate(2.13, 10, 1000, 12.0)]
 
 
 @pytest.fixture(scope="module")
 def infos():
-    return {c: run_information(c) for c in SMALL}
+    """Candidate -> (B, M, summary): information and score covariance."""
+    return {c: run_information_parts(c) for c in SMALL}
 
 
 def test_information_matches_finite_differences():
@@ -44,11 +45,27 @@ def test_information_matches_finite_differences():
 
 
 def test_run_information_is_symmetric_psd(infos):
-    for c, (I, s) in infos.items():
+    for c, (I, M, s) in infos.items():
         assert s["used"], (c, s)
-        assert np.allclose(I, I.T)
-        assert np.linalg.eigvalsh(I).min() >= -1e-6 * np.abs(I).max()
-    assert infos[SMALL[2]][1]["kind"] == "creep"  # steady sliding still informs μ(v)
+        for X in (I, M):
+            assert np.allclose(X, X.T)
+            assert np.linalg.eigvalsh(X).min() >= -1e-6 * np.abs(X).max()
+        np.testing.assert_allclose(run_information(c)[0], I, rtol=1e-9, atol=0)
+    assert infos[SMALL[2]][2]["kind"] == "creep"  # steady sliding still informs μ(v)
+    # a creep run has no triggers: its score covariance is its information
+    np.testing.assert_allclose(infos[SMALL[2]][1], infos[SMALL[2]][0], rtol=1e-12)
+
+
+def test_phase_locked_triggers_cost_information(infos):
+    """The stick-slip runs' slips recur at nearly one phase: their shared trigger error
+    makes the sandwich B⁻¹MB⁻¹ wider than B⁻¹ for the trigger-bound static friction."""
+    B = sum(infos[c][0] for c in SMALL)
+    M = sum(infos[c][1] for c in SMALL)
+    fisher = np.sqrt(np.diag(np.linalg.inv(B)))
+    sandwich = np.sqrt(np.diag(np.linalg.inv(_effective(B, M))))
+    assert sandwich[0] > 1.05 * fisher[0]  # mu_max
+    np.testing.assert_allclose(np.linalg.inv(_effective(B, M)),
+                               np.linalg.solve(B, M) @ np.linalg.inv(B), rtol=1e-6)
 
 
 def test_no_information_run_says_why():
@@ -56,19 +73,26 @@ def test_no_information_run_says_why():
     assert not s["used"] and "stepping" in s["reason"] and not I.any()
 
 
-def _logdet(I):
+def _logdet(combo, infos):
+    """log det of a plan's effective information (the sandwich's inverse), relative."""
     scale = np.array([0.796, 0.484, 0.0674, 0.015])  # FOTAS nominal: relative parameters
-    sign, v = np.linalg.slogdet(I * np.outer(scale, scale))
+    E = _effective(sum(infos[c][0] for c in combo), sum(infos[c][1] for c in combo))
+    sign, v = np.linalg.slogdet(E * np.outer(scale, scale))
     return v if sign > 0 else -np.inf
 
 
 def test_d_optimal_beats_every_enumerated_plan(infos):
     plan = design_experiment(3, candidates=SMALL, reference=SMALL[:1] * 3, criterion="D")
     assert plan.enumeration["method"] == "exhaustive enumeration"
-    best = _logdet(sum(infos[c][0] for c in plan.plan))
+    best = _logdet(plan.plan, infos)
     for combo in itertools.combinations_with_replacement(SMALL, 3):
-        assert best >= _logdet(sum(infos[c][0] for c in combo)) - 1e-9
-    assert plan.criterion_value == pytest.approx(best, abs=1e-9)
+        assert best >= _logdet(combo, infos) - 1e-9
+    assert plan.criterion_value == pytest.approx(best, abs=1e-6)
+    # the predicted standard errors are the sandwich's; the Fisher ones are reported beside
+    E = _effective(sum(infos[c][0] for c in plan.plan), sum(infos[c][1] for c in plan.plan))
+    assert [plan.predicted_stderr[n] for n in plan.free] == pytest.approx(np.sqrt(np.diag(np.linalg.inv(E))))
+    B = sum(infos[c][0] for c in plan.plan)
+    assert [plan.fisher_stderr[n] for n in plan.free] == pytest.approx(np.sqrt(np.diag(np.linalg.inv(B))))
 
 
 def test_exchange_finds_the_enumerated_optimum():
@@ -166,8 +190,13 @@ def test_verification_measures_spread(tmp_path, monkeypatch):
     again = experiment.verify_plans(plan, 3, seed=1, workers=1, record=record)
     assert again["plan_stderr"] == mc["plan_stderr"]
     # ... but not under other conditions (another noise level, another coating)
-    assert len(experiment._load_record(record, experiment._record_context(plan, 90.0, experiment.STICK_SPEED))) == 6
-    assert not experiment._load_record(record, experiment._record_context(plan, 60.0, experiment.STICK_SPEED))
+    ctx = lambda noise, jit=experiment.JITTER_LOAD: experiment._record_context(  # noqa: E731
+        plan, noise, experiment.STICK_SPEED, jit)
+    assert len(experiment._load_record(record, ctx(90.0))) == 6
+    assert not experiment._load_record(record, ctx(60.0))
+    assert not experiment._load_record(record, ctx(90.0, 0.0))  # nominal loads: other data
+    # each fit's own intervals are kept: the coverage of the plan's nominal values
+    assert all(0.0 <= mc["plan_coverage"][n] <= 1.0 for n in plan.free)
 
 
 def test_verification_interleaves_the_plans():
@@ -183,3 +212,25 @@ def test_verification_interleaves_the_plans():
     assert jobs[:2] == [("reference_stderr", 0), ("reference_stderr", 1)]
     assert sorted(jobs) == [("plan_stderr", 2), ("reference_stderr", 0), ("reference_stderr", 1),
                             ("reference_stderr", 2)]
+
+
+def test_verification_redraws_the_loads():
+    from design.experiment import _jittered
+
+    plan = [Candidate(2.13, 10.0, 100), Candidate(2.13, 10.0, 100), Candidate(20.3, 40.0, 30)]
+    a, b = _jittered(plan, 3, 0.05), _jittered(plan, 3, 0.05)
+    assert a == b  # seeded by the repeat
+    assert a != _jittered(plan, 4, 0.05)
+    for c, j in zip(plan, a):
+        assert abs(j.normal_load_uN / c.normal_load_uN - 1) <= 0.05
+        assert (j.spring_constant_N_per_m, j.step_frequency_Hz, j.travel_um) == \
+            (c.spring_constant_N_per_m, c.step_frequency_Hz, c.travel_um)
+    assert a[0].normal_load_uN != a[1].normal_load_uN  # replicates differ
+    assert _jittered(plan, 3, 0.0) == plan
+
+
+def test_cli_bad_jitter(tmp_path, capsys):
+    assert main(["experiment", "--runs", "2", "--verify", "2", "--verify-jitter", "1.5",
+                 "--json", str(tmp_path / "o.json")]) == 2
+    err = capsys.readouterr().err
+    assert "--verify-jitter 1.5" in err and "Traceback" not in err
