@@ -156,7 +156,7 @@ def _schur_information(prob, w, meat: bool = False):
     """Information on the scaled parameters, the nuisances eliminated (the NLP's own);
     with ``meat``, (information, score covariance)."""
     try:
-        return prob.information_parts(w) if meat else prob.information(w)
+        return prob.information_parts(w, frame_scale=1.0) if meat else prob.information(w)
     except ValueError as err:
         raise ValueError(f"the run's {err} (nominal parameters)") from None
 
@@ -179,11 +179,13 @@ def _criterion(I_rel: np.ndarray, name: str) -> float:
 
 def _effective(B: np.ndarray, M: np.ndarray) -> np.ndarray:
     """B·M⁻¹·B: the inverse of the sandwich covariance B⁻¹MB⁻¹ (what the criteria and the
-    predicted standard errors are taken of); zero where M is singular."""
-    try:
-        E = B @ np.linalg.solve(M, B)
-    except np.linalg.LinAlgError:
+    predicted standard errors are taken of). M's pseudo-inverse: a direction in which the
+    score does not vary (a plan that does not inform it) carries no information, rather
+    than a huge one from a near-singular solve."""
+    scale = np.abs(M).max()
+    if not np.all(np.isfinite(M)) or not scale:
         return np.zeros_like(B)
+    E = B @ np.linalg.pinv(M, rcond=1e-12, hermitian=True) @ B
     return 0.5 * (E + E.T)
 
 
@@ -263,8 +265,9 @@ class ExperimentPlan:
                     f"(predicted {self.reference_stderr[n]:.3g}, x{mc['reference_measured_over_predicted'][n]:.2f})")
             if "plan_coverage" in mc:
                 cov = lambda c: ", ".join(f"{n} {100 * c[n]:.0f} %" for n in self.free)  # noqa: E731
-                lines.append(f"  the fits' own 95 % intervals hold the truth: plan {cov(mc['plan_coverage'])}; "
-                             f"reference {cov(mc['reference_coverage'])}")
+                lines.append(f"  the fits' own 95 % intervals hold the truth: plan {cov(mc['plan_coverage'])} "
+                             f"({mc['plan_coverage_fits']} fits); reference {cov(mc['reference_coverage'])} "
+                             f"({mc['reference_coverage_fits']} fits)")
             lines.append(f"  measured geometric-mean RMS error, reference / plan = {mc['geometric_mean_ratio']:.2f}")
         unused = [(c, s) for c, s in self.candidates if not s.get("used")]
         if unused:
@@ -638,6 +641,7 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
         out[f"{pre}_rms_error"] = rms
         out[f"{pre}_measured_over_predicted"] = ratio
         out[f"{pre}_coverage"] = cover
+        out[f"{pre}_coverage_fits"] = sum(1 for row in good if row.get("ci95"))
         out[f"{pre}_failed"] = sum(1 for (k, _), row in rows.items() if k == key and "error" in row)
         out[f"{pre}_estimates"] = ok
     g_plan = plan._gmean(out["plan_rms_error"], plan.nominal)

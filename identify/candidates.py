@@ -146,27 +146,16 @@ def run_candidate(task: CandidateTask) -> dict:
 
 def _estimates(prob, w, ev) -> dict:
     """value, stderr, 95 % interval of every free parameter (robust covariance)."""
-    from .report import _scaled_ci
+    from .report import _stderrs
 
     tm = prob.theta
     th = w[: prob.n_theta]
-    vals = tm.from_scaled(th)
-    d = tm.jacobian_diag(th)
     try:
         C = prob.covariance(w, robust=True)
     except Exception:
         C = np.full((prob.n_theta, prob.n_theta), np.nan)
-    out = {}
-    for i, n in enumerate(tm.names):
-        var = C[i, i]
-        sig = math.sqrt(var) if np.isfinite(var) and var >= 0 else float("nan")
-        try:
-            ci = _scaled_ci(th[i], sig, tm, i) if np.isfinite(sig) else None
-        except OverflowError:  # a log-scaled parameter the data do not determine at all
-            ci = None
-        out[n] = dict(value=float(vals[i]), stderr=float(abs(d[i]) * sig) if np.isfinite(sig) else None,
-                      ci95=list(ci) if ci is not None else None)
-    return out
+    return {n: dict(value=float(v), stderr=se, ci95=list(ci) if ci is not None else None)
+            for n, v, (se, _, ci) in zip(tm.names, tm.from_scaled(th), _stderrs(tm, th, C, 1.0))}
 
 
 def _confounding(prob, w, ev, extra: Sequence[str]) -> dict:

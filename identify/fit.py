@@ -474,12 +474,17 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     prob = Problem(run_data, model, values, opts).build()
     start_given = dict(start)
     if opts.staged_start:
-        from .start import staged_start
+        from .start import staged_start, start_merit
 
         say("start: aging from the triggers, then the slip parameters from slip lengths")
-        start, stages = staged_start(prob, start, seed=opts.seed or 0)
-        start_source += " -> staged (triggers, slip lengths)"
-        log.info("staged start %s from %s", start, start_given)
+        staged, stages = staged_start(prob, start, seed=opts.seed or 0)
+        m_from, m_staged = start_merit(prob, start), start_merit(prob, staged)
+        log.info("staged start %s (χ² %.6g) from %s (χ² %.6g)", staged, m_staged, start_given, m_from)
+        if m_staged <= m_from:
+            start = staged
+            start_source += " -> staged (triggers, slip lengths)"
+        else:
+            start_source += f" (staged start rejected: χ² {m_staged:.4g} > {m_from:.4g})"
     w0 = prob.initial_w(start)
     starts = [w0]
     rng = np.random.default_rng(opts.seed)

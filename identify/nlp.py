@@ -829,13 +829,17 @@ class Problem:
         KKT matrix invertible and is subtracted again: (C_ε)⁻¹ − εI is the exact complement."""
         return self.information_parts(w, evaluated, meat=False)[0]
 
-    def information_parts(self, w: np.ndarray, evaluated=None, meat: bool = True):
+    def information_parts(self, w: np.ndarray, evaluated=None, meat: bool = True,
+                          frame_scale: float | None = None):
         """(B, M) on the scaled free parameters, the nuisances eliminated: B the
         information of :meth:`information`, M the covariance of the reduced score under
         the robust covariance's error model (:meth:`covariance`: the frames independent,
         a run's triggers exchangeable). The estimator's covariance is B⁻¹MB⁻¹; for
         independent runs B and M both add up, so a plan's prediction is assembled from
-        its runs'. M = B when there are no triggers (or ``meat=False``: None)."""
+        its runs'. σ² of the triggers is pooled over this problem's runs, and so is the
+        frames' χ² scale unless ``frame_scale`` sets it (a design sets 1: its noise model
+        is exact, and a creep run's one steady mean gives no χ² to scale by).
+        ``meat=False``: (B, None)."""
         if evaluated is None:
             self.central_differences()
         r, g, Jr, Jg = evaluated if evaluated is not None else self.evaluate(w, jac=True)
@@ -861,12 +865,10 @@ class Problem:
         info = 0.5 * (info + info.T)
         if not meat:
             return info, None
-        if not self.n_trig:
-            return info, info.copy()
         # δθ = C_ε·u (u the reduced score): Cov(u) = C_ε⁻¹·Cov_ε(δθ)·C_ε⁻¹, exact for any ε
         X = np.zeros((self.n_w, n_th))
         X[keep] = sol[: len(keep)]
-        V = self._sandwich_meat(r, Jr, X, "robust")
+        V = self._sandwich_meat(r, Jr, X, "robust", frame_scale=frame_scale)
         M = Cinv @ V @ Cinv
         return info, 0.5 * (M + M.T)
 
@@ -899,8 +901,11 @@ class Problem:
         (ρ = 1); one whose phase walks through the interval has nearly independent ones
         (ρ = 0). The spread of the residuals within a run tells which: ρ = 1 − v/σ², v its
         within-run variance. σ² is 1 unless the pooled within-run variance exceeds it (the
-        uniform picture failing: then that). Runs with fewer than three slips: ρ = 1,
-        the cautious end.
+        uniform picture failing: then that). Runs with fewer than three trigger residuals
+        (four slips: the first has none) get ρ = 1, the cautious end. With ``free_phase``
+        each run's phase φ takes up the shared error (its own residual counts it), so the
+        slips' residuals √12·(s − φ) keep only what varies within the run: ρ = 0.
+        A non-finite residual gives σ² = NaN (an undetermined covariance, not a quiet 1).
         """
         runs = self.ev_run[self.ev_next]
         rs = np.asarray(r_trig[: self.n_trig], float)
@@ -912,18 +917,20 @@ class Problem:
                 var[int(c)] = float(np.var(x, ddof=1))
                 within += var[int(c)] * (len(x) - 1)
                 dof += len(x) - 1
-        sig2 = max(1.0, within / dof) if dof else 1.0
+        sig2 = (max(1.0, within / dof) if np.isfinite(within) else float("nan")) if dof else 1.0
+        if self.opts.free_phase:
+            return {int(c): 0.0 for c in np.unique(runs)}, sig2
         rho = {int(c): float(np.clip(1.0 - var[int(c)] / sig2, 0.0, 1.0)) if int(c) in var else 1.0
                for c in np.unique(runs)}
         return rho, sig2
 
-    def _exchangeable_meat(self, A_t: np.ndarray, r_trig: np.ndarray, runs: np.ndarray) -> np.ndarray:
+    def _exchangeable_meat(self, A_t: np.ndarray, r_trig: np.ndarray) -> np.ndarray:
         """Σ_c σ²[(1 − ρ_c)·Σ a_i a_iᵀ + ρ_c·(Σ a_i)(Σ a_i)ᵀ] over each run's slip triggers
-        (a_i the rows of Jₜ·X), plus the other trigger-group rows (phases, first starts:
-        one draw each) as independent unit-variance residuals."""
+        (a_i the rows of Jₜ·X, in :meth:`trigger_runs` order), plus the other trigger-group
+        rows (phases, first starts: one draw each) as independent unit-variance residuals."""
         rho, sig2 = self.trigger_correlation(r_trig)
         n = self.n_trig
-        slip_runs = runs[:n]
+        slip_runs = self.ev_run[self.ev_next]
         M = A_t[n:].T @ A_t[n:]
         for c, rc in rho.items():
             a = A_t[:n][slip_runs == c]
@@ -983,7 +990,8 @@ class Problem:
             sol = np.linalg.lstsq(Kd, rhs, rcond=1e-12)[0] if np.all(np.isfinite(Kd)) else np.full(rhs.shape, np.nan)
         X = np.zeros((self.n_w, len(cols)))
         X[keep] = sol[:n]
-        if mode != "model" and self.n_trig:
+        if mode != "model":
+            # (without triggers too: then the frames' χ² scale is what the sandwich adds)
             Cw = self._sandwich_meat(r, Jr, X, mode)
         else:
             Cw = sol[cols, :]
@@ -993,10 +1001,10 @@ class Problem:
                 C[i, j] = Cw[a_, b_]
         return C
 
-    def _sandwich_meat(self, r, Jr, X, mode: str) -> np.ndarray:
+    def _sandwich_meat(self, r, Jr, X, mode: str, frame_scale: float | None = None) -> np.ndarray:
         """Xᵀ·Cov(Jᵀr)·X: the frames (and creep means) independent, scaled by their
-        reduced χ² when above 1; the triggers exchangeable within a run (``robust``) or
-        cluster-robust from the realised residuals (``cluster``)."""
+        reduced χ² when above 1 (or by ``frame_scale``); the triggers exchangeable within
+        a run (``robust``) or cluster-robust from the realised residuals (``cluster``)."""
         grp = self.residual_groups()
         t0, t1 = grp["triggers"]
         ind = np.r_[np.arange(0, t0), np.arange(t1, len(r))]
@@ -1006,10 +1014,10 @@ class Problem:
         n_frames_fix = self.n_effective() - (len(self.ev_firsts) if self.n_s else 0)
         s2 = float(ri @ ri) / max(len(ri) - n_frames_fix, 1)
         A_ = np.asarray(Ji @ X)
-        meat_part = max(s2, 1.0) * (A_.T @ A_)
+        meat_part = (max(s2, 1.0) if frame_scale is None else frame_scale) * (A_.T @ A_)
         Jt = Jr[t0:t1]
-        runs = self.trigger_runs()
         if mode == "cluster":
+            runs = self.trigger_runs()
             scores = np.asarray(Jt.multiply(r[t0:t1][:, None]).tocsr().toarray())  # per-residual scores
             clusters = np.unique(runs)
             S = np.zeros((len(clusters), self.n_w))
@@ -1019,5 +1027,5 @@ class Problem:
             nc = len(clusters)
             Cw = meat_part + (nc / max(nc - 1, 1)) * (B.T @ B)
         else:
-            Cw = meat_part + self._exchangeable_meat(np.asarray(Jt @ X), r[t0:t1], runs)
+            Cw = meat_part + self._exchangeable_meat(np.asarray(Jt @ X), r[t0:t1])
         return Cw

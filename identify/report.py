@@ -236,7 +236,10 @@ def _stderrs(tm, th, C, scale) -> list:
         var = C[i, i] * scale if np.isfinite(C[i, i]) else np.nan
         sig_th = math.sqrt(var) if var >= 0 and np.isfinite(var) else float("nan")
         se = abs(d[i]) * sig_th if np.isfinite(sig_th) else None
-        ci = _scaled_ci(th[i], sig_th, tm, i) if se is not None else None
+        try:
+            ci = _scaled_ci(th[i], sig_th, tm, i) if se is not None else None
+        except OverflowError:  # a log-scaled parameter the data do not determine at all
+            ci = None
         out.append((se, sig_th, ci))
     return out
 
@@ -258,7 +261,7 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
     d = tm.jacobian_diag(th)
     params: dict = {}
     cov_nat = np.full((prob.n_theta, prob.n_theta), np.nan)
-    for i, (n, (se, sig_th, ci)) in enumerate(zip(tm.names, _stderrs(tm, th, C, scale))):
+    for i, (n, (se, _, ci)) in enumerate(zip(tm.names, _stderrs(tm, th, C, scale))):
         flag = None
         rng = tm.hi[i] - tm.lo[i]
         if min(th[i] - tm.lo[i], tm.hi[i] - th[i]) < 1e-6 * max(rng, 1.0):

@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 
 from .model import LENGTH_UNIT
 
-__all__ = ["staged_start"]
+__all__ = ["staged_start", "start_merit"]
 
 log = logging.getLogger(__name__)
 _PRIOR_WEIGHT = 0.1  # residual per scaled unit away from the start
@@ -153,3 +153,21 @@ def staged_start(prob, start_values: dict, max_slips: int = 80, seed: int = 0) -
     if "mu_min" in out and "mu_max" in out and out["mu_min"] >= out["mu_max"]:
         out["mu_min"] = 0.95 * out["mu_max"]
     return out, info
+
+
+def start_merit(prob, start_values: dict) -> float:
+    """χ² of the full problem at a start: its residuals plus each slip's length misfit in
+    units of its noise (the shooting constraints, which the start leaves violated; the
+    plateaus sit at the frames). Lower is better; the staged start is kept only where it
+    is lower than the start it came from (measured: with two conditions, each a locked
+    phase, the aging stage put τ 8× too high, A at 0, and the fit ended in that basin)."""
+    w = prob.initial_w(start_values)
+    r, g = prob.evaluate(w)
+    if not prob.E:
+        return float(r @ r)
+    prev = prob.ev_prev
+    sig = prob.pl_sigma[prev] * np.sqrt(1 / np.maximum(prob.pl_n[prev], 1)
+                                        + 1 / np.maximum(prob.pl_n[prev + 1], 1)) / LENGTH_UNIT
+    gl = np.asarray(g[: prob.E], float) / sig
+    m = float(r @ r + gl @ gl)
+    return m if np.isfinite(m) else float("inf")

@@ -9,24 +9,24 @@ import pytest
 from identify.nlp import Problem
 
 
-def _fake(runs_of_slips, n_other=2):
+def _fake(runs_of_slips, free_phase=False):
     """The attributes trigger_correlation and _exchangeable_meat read: slip trigger rows
     first (their runs), then n_other phase / first-start rows."""
     runs = np.asarray(runs_of_slips, int)
     ev_run = np.r_[runs[:1], runs]  # a first slip (no trigger row) ahead of the rest
-    fake = SimpleNamespace(ev_run=ev_run, ev_next=np.arange(1, len(ev_run)), n_trig=len(runs))
+    fake = SimpleNamespace(ev_run=ev_run, ev_next=np.arange(1, len(ev_run)), n_trig=len(runs),
+                           opts=SimpleNamespace(free_phase=free_phase))
     fake.trigger_correlation = lambda r: Problem.trigger_correlation(fake, r)
-    all_runs = np.r_[runs, np.zeros(n_other, int)]
-    return fake, all_runs
+    return fake
 
 
 def test_phase_locked_runs_share_one_error():
-    fake, runs = _fake([0] * 5 + [1] * 4)
+    fake = _fake([0] * 5 + [1] * 4)
     r = np.r_[np.full(5, 0.7), np.full(4, -1.2), 0.0, 0.3]
     rho, sig2 = Problem.trigger_correlation(fake, r)
     assert rho == {0: 1.0, 1: 1.0} and sig2 == 1.0
     a = np.random.default_rng(0).normal(size=(len(r), 3))
-    M = Problem._exchangeable_meat(fake, a, r, runs)
+    M = Problem._exchangeable_meat(fake, a, r)
     want = (np.outer(a[:5].sum(0), a[:5].sum(0)) + np.outer(a[5:9].sum(0), a[5:9].sum(0))
             + a[9:].T @ a[9:])
     np.testing.assert_allclose(M, want, rtol=1e-12)
@@ -38,7 +38,7 @@ def test_walking_phases_count_as_independent():
     rng = np.random.default_rng(1)
     s = rng.uniform(size=4000)
     r_slip = np.sqrt(12) * (s - 0.5)
-    fake, runs = _fake([0] * 2000 + [1] * 2000, n_other=0)
+    fake = _fake([0] * 2000 + [1] * 2000)
     rho, sig2 = Problem.trigger_correlation(fake, r_slip)
     assert rho[0] < 0.1 and rho[1] < 0.1 and sig2 == pytest.approx(1.0, abs=0.1)
     # half-locked: a shared position plus a within-run spread of half the variance
@@ -53,14 +53,31 @@ def test_misfit_beyond_the_uniform_scales_the_meat():
     rng = np.random.default_rng(2)
     r = 2.0 * rng.standard_normal(6000)
     r = np.concatenate([(x - x.mean()) / x.std(ddof=1) * 2.0 for x in np.split(r, 2)])
-    fake, runs = _fake([0] * 3000 + [1] * 3000, n_other=0)
+    fake = _fake([0] * 3000 + [1] * 3000)
     rho, sig2 = Problem.trigger_correlation(fake, r)
     assert sig2 == pytest.approx(4.0, rel=1e-9) and max(rho.values()) < 1e-9
     a = rng.normal(size=(6000, 2))
-    np.testing.assert_allclose(Problem._exchangeable_meat(fake, a, r, runs), 4.0 * a.T @ a, rtol=1e-9)
+    np.testing.assert_allclose(Problem._exchangeable_meat(fake, a, r), 4.0 * a.T @ a, rtol=1e-9)
 
 
 def test_runs_with_too_few_slips_are_taken_as_locked():
-    fake, _ = _fake([0, 0, 1, 1, 1])
+    fake = _fake([0, 0, 1, 1, 1])
     rho, _ = Problem.trigger_correlation(fake, np.array([1.5, -1.5, 0.2, -0.2, 0.0]))
     assert rho[0] == 1.0 and rho[1] < 1.0
+
+
+def test_a_free_phase_takes_the_shared_error():
+    # with free_phase the residuals are √12(s − φ): the shared part is the phase's, whose
+    # own row counts it; the slips' rows must not count it again
+    fake = _fake([0] * 5, free_phase=True)
+    r = np.r_[np.full(5, 0.7), 0.0]
+    rho, _ = Problem.trigger_correlation(fake, r)
+    assert rho == {0: 0.0}
+    a = np.random.default_rng(3).normal(size=(6, 2))
+    np.testing.assert_allclose(Problem._exchangeable_meat(fake, a, r), a.T @ a, rtol=1e-12)
+
+
+def test_a_nan_residual_is_not_hidden():
+    fake = _fake([0] * 4 + [1] * 4)
+    _, sig2 = Problem.trigger_correlation(fake, np.r_[np.nan, np.zeros(7)])
+    assert np.isnan(sig2)

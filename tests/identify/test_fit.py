@@ -174,6 +174,18 @@ def test_uncertainty_under_other_covariances(small_fit):
         res.uncertainty("sandwich")
 
 
+def test_a_staged_start_that_fits_worse_is_rejected(small_traces, monkeypatch):
+    import identify.start as start_mod
+
+    truth = parameter_set("FOTAS")
+    # what a misled aging stage did on a two-condition plan: τ 8x too high, A at its floor
+    monkeypatch.setattr(start_mod, "staged_start",
+                        lambda prob, start, **kw: (dict(start, tau=8 * truth["tau"], A=1e-10), {}))
+    res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}))
+    assert "staged start rejected" in res.start_source
+    assert res["tau"].value == pytest.approx(truth["tau"], rel=0.25)
+
+
 @pytest.mark.parametrize("kwargs, match", [
     (dict(free=("mu_max", "nonsense")), "nonsense"),
     (dict(free=("mu_max",), fixed={"mu_max": 0.7}), "both free and fixed"),
