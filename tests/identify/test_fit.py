@@ -186,6 +186,40 @@ def test_a_staged_start_that_fits_worse_is_rejected(small_traces, monkeypatch):
     assert res["tau"].value == pytest.approx(truth["tau"], rel=0.25)
 
 
+def test_a_suspect_solution_is_solved_again_from_the_unstaged_start(small_traces, monkeypatch):
+    import importlib
+
+    fit_mod = importlib.import_module("identify.fit")  # (the package exports the function fit)
+    calls = []
+
+    def suspect_once(prob, res):
+        calls.append(res["f"])
+        return "forced by the test" if len(calls) == 1 else ""
+
+    monkeypatch.setattr(fit_mod, "_suspect", suspect_once)
+    truth = parameter_set("FOTAS")
+    off = {"mu_max": truth["mu_max"] / 1.2, "mu_min": truth["mu_min"] * 1.2, "tau": truth["tau"] * 1.2,
+           "A": truth["A"] * 1.2}  # 20 % off: the staged start improves on it
+    res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}, start=off))
+    assert "-> staged" in res.start_source
+    assert "solved again from the unstaged start" in res.start_source
+    assert res.multistart["starts"] == 2 and len(res.multistart["costs"]) == 2
+    assert res.solver["success"]
+
+
+def test_what_makes_a_solution_suspect(small_fit):
+    from identify.fit import _suspect
+
+    prob, w = small_fit.problem, small_fit.w
+    f = 0.5 * float(prob.residuals(w) @ prob.residuals(w))
+    assert _suspect(prob, dict(f=f, success=True)) == ""
+    assert "Line_Search_Failed" in _suspect(prob, dict(f=f, success=False, status="Line_Search_Failed"))
+    dof = prob.n_observations() - prob.n_effective()
+    f5 = 0.5 * (5 * dof - prob.chi2_constant())  # reduced χ² 5: the noise explains 1
+    assert "reduced χ² 5" in _suspect(prob, dict(f=f5, success=True))
+    assert _suspect(prob, dict(f=np.inf, success=False)) == "no solution"
+
+
 @pytest.mark.parametrize("kwargs, match", [
     (dict(free=("mu_max", "nonsense")), "nonsense"),
     (dict(free=("mu_max",), fixed={"mu_max": 0.7}), "both free and fixed"),
