@@ -100,7 +100,7 @@ def run_information_parts(c: Candidate, coating: str = "FOTAS", *, params: Mappi
     n = len(free)
     if prob is None:
         return np.zeros((n, n)), (np.zeros((n, n)) if meat else None), summary
-    B, M = _schur_information(prob, w, meat) if meat else (_schur_information(prob, w), None)
+    B, M = _schur_information(prob, w, meat)
     D = prob.theta.jacobian_diag(w[: prob.n_theta])  # d natural / d scaled
     DD = np.outer(D, D)
     return B / DD, (M / DD if meat else None), summary
@@ -152,11 +152,11 @@ def run_problem(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, fl
     return prob, w, dict(info, used=True, reason=None, kind=rd.kind, n_events=int(prob.E))
 
 
-def _schur_information(prob, w, meat: bool = False):
-    """Information on the scaled parameters, the nuisances eliminated (the NLP's own);
-    with ``meat``, (information, score covariance)."""
+def _schur_information(prob, w, meat: bool = True):
+    """(information, score covariance or None) on the scaled parameters, the nuisances
+    eliminated (the NLP's own; the frames at the design's stated noise)."""
     try:
-        return prob.information_parts(w, frame_scale=1.0) if meat else prob.information(w)
+        return prob.information_parts(w, meat=meat, frame_scale=1.0)
     except ValueError as err:
         raise ValueError(f"the run's {err} (nominal parameters)") from None
 
@@ -182,8 +182,7 @@ def _effective(B: np.ndarray, M: np.ndarray) -> np.ndarray:
     predicted standard errors are taken of). M's pseudo-inverse: a direction in which the
     score does not vary (a plan that does not inform it) carries no information, rather
     than a huge one from a near-singular solve."""
-    scale = np.abs(M).max()
-    if not np.all(np.isfinite(M)) or not scale:
+    if not np.all(np.isfinite(M)) or not np.any(M):
         return np.zeros_like(B)
     E = B @ np.linalg.pinv(M, rcond=1e-12, hermitian=True) @ B
     return 0.5 * (E + E.T)

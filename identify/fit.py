@@ -404,7 +404,7 @@ def _suspect(prob, res) -> str:
     the frames' noise does not explain it (reduced χ² > SUSPECT_REDCHI)."""
     if not np.isfinite(res["f"]):
         return "no solution"
-    redchi = (2 * res["f"] + prob.chi2_constant()) / max(prob.n_observations() - prob.n_effective(), 1)
+    redchi = (2 * res["f"] + prob.chi2_constant()) / prob.dof()
     if not res.get("success"):
         return f"solver: {res.get('status')}, reduced χ² {redchi:.3g}"
     return f"reduced χ² {redchi:.3g}" if redchi > SUSPECT_REDCHI else ""

@@ -795,6 +795,10 @@ class Problem:
         return int(sum(r.plateau_n.sum() + len(r.trigger_steps) if r.kind == "events" else 1
                        for r in self.runs))
 
+    def dof(self) -> int:
+        """Degrees of freedom of the χ²: observations less free dimensions (at least 1)."""
+        return max(self.n_observations() - self.n_effective(), 1)
+
     def n_effective(self) -> int:
         """Free dimensions: parameters, offsets, and per events run its first plateau,
         its trigger phase (free_phase) and its first slip's start (arc_start="aged"); the

@@ -253,7 +253,7 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
     chi2 = float(r @ r) + prob.chi2_constant()
     n_obs = prob.n_observations()
     k = prob.n_effective()
-    dof = max(n_obs - k, 1)
+    dof = prob.dof()
     redchi = chi2 / dof
     C, scale = _covariance(prob, w, getattr(prob.opts, "covariance", "robust"), redchi)
     th = w[: prob.n_theta]

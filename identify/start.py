@@ -62,6 +62,14 @@ def _aging_residuals(prob, names, values, tab):
     return trigger_residual(prob.position(z, tab["x_prev"], e0, Pev, z_before=z_before))
 
 
+def _slip_length_sigma(prob, ev) -> np.ndarray:
+    """Noise of slips ``ev``'s measured lengths (µm): the difference of the mean levels
+    of the plateaus before and after each."""
+    prev = prob.ev_prev[ev]
+    return prob.pl_sigma[prev] * np.sqrt(1 / np.maximum(prob.pl_n[prev], 1)
+                                         + 1 / np.maximum(prob.pl_n[prev + 1], 1)) / LENGTH_UNIT
+
+
 def _seed(law, P) -> float:
     # the logistic law never re-ages from exactly μmin: a slip leaves a trace of order
     # exp(−δ/dc); 1e-6 of the range is a generous stand-in for the start only
@@ -120,9 +128,7 @@ def staged_start(prob, start_values: dict, max_slips: int = 80, seed: int = 0) -
             ev = np.sort(rng.choice(ev, max_slips, replace=False))
         x = prob.pl_x0
         dx_data = (x[prob.ev_prev[ev] + 1] - x[prob.ev_prev[ev]]) / LENGTH_UNIT
-        sig = prob.pl_sigma[prob.ev_prev[ev]] * np.sqrt(
-            1 / np.maximum(prob.pl_n[prob.ev_prev[ev]], 1) + 1 / np.maximum(prob.pl_n[prob.ev_prev[ev] + 1], 1)
-        ) / LENGTH_UNIT
+        sig = _slip_length_sigma(prob, ev)
         sub = dict(tab)
         pos = np.searchsorted(tab["ev"], ev)
         ok = (pos < len(tab["ev"])) & (tab["ev"][np.minimum(pos, len(tab["ev"]) - 1)] == ev)
@@ -165,9 +171,6 @@ def start_merit(prob, start_values: dict) -> float:
     r, g = prob.evaluate(w)
     if not prob.E:
         return float(r @ r)
-    prev = prob.ev_prev
-    sig = prob.pl_sigma[prev] * np.sqrt(1 / np.maximum(prob.pl_n[prev], 1)
-                                        + 1 / np.maximum(prob.pl_n[prev + 1], 1)) / LENGTH_UNIT
-    gl = np.asarray(g[: prob.E], float) / sig
+    gl = np.asarray(g[: prob.E], float) / _slip_length_sigma(prob, np.arange(prob.E))
     m = float(r @ r + gl @ gl)
     return m if np.isfinite(m) else float("inf")

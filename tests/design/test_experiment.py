@@ -24,7 +24,7 @@ def test_information_matches_finite_differences():
     re-solved at each θ (central differences)."""
     prob, w, summary = run_problem(SMALL[0])
     assert summary["used"] and summary["kind"] == "events"
-    info = _schur_information(prob, w)
+    info, _ = _schur_information(prob, w, meat=False)
     n = prob.n_theta
 
     def profiled(th):
@@ -194,7 +194,7 @@ def test_verification_measures_spread(tmp_path, monkeypatch):
     assert not experiment._load_record(record, ctx(60.0))
     assert not experiment._load_record(record, ctx(90.0, 0.0))  # nominal loads: other data
     # each fit's own intervals are kept: the coverage of the plan's nominal values
-    assert all(0.0 <= mc["plan_coverage"][n] <= 1.0 for n in plan.free)
+    assert mc["plan_coverage_fits"] == 3 and all(0.0 <= mc["plan_coverage"][n] <= 1.0 for n in plan.free)
 
 
 def test_verification_interleaves_the_plans():

@@ -214,7 +214,7 @@ def test_what_makes_a_solution_suspect(small_fit):
     f = 0.5 * float(prob.residuals(w) @ prob.residuals(w))
     assert _suspect(prob, dict(f=f, success=True)) == ""
     assert "Line_Search_Failed" in _suspect(prob, dict(f=f, success=False, status="Line_Search_Failed"))
-    dof = prob.n_observations() - prob.n_effective()
+    dof = prob.dof()
     f5 = 0.5 * (5 * dof - prob.chi2_constant())  # reduced χ² 5: the noise explains 1
     assert "reduced χ² 5" in _suspect(prob, dict(f=f5, success=True))
     assert _suspect(prob, dict(f=np.inf, success=False)) == "no solution"
