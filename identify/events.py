@@ -600,6 +600,10 @@ class RunEvents:
         at rest between slips, 1 for a block that follows the puller (creep or
         stepping, where PELT cuts the ramp of b into short pieces). NaN without such
         plateaus.
+    segmentation_trend_m_per_s : float
+        Speed removed from b before the plateaus were found (negative: the block seemed
+        to move backward within its plateaus, :data:`BACKWARD_SIGMAS`); 0 when b was
+        segmented as it is.
     """
 
     trace: Trace
@@ -616,6 +620,7 @@ class RunEvents:
     warnings: list = field(default_factory=list)
     creep_ratio: float = math.nan
     creep_ratio_se: float = math.nan
+    segmentation_trend_m_per_s: float = 0.0
 
     @property
     def n_slips(self) -> int:
@@ -659,6 +664,7 @@ class RunEvents:
             excluded_frames=np.flatnonzero(self.plateau_of_frame < 0),
             creep_ratio=self.creep_ratio,
             creep_ratio_se=self.creep_ratio_se,
+            segmentation_trend_m_per_s=self.segmentation_trend_m_per_s,
             reduced=self.reduced.to_json() if self.reduced is not None else None,
             warnings=list(self.warnings),
         )
@@ -806,6 +812,14 @@ def extract_events(trace: Trace, *, noise_m: float | None = None, min_z: float =
         tried.add(new_phi)
         phi = new_phi
     warnings += seg_warnings
+    segs, sigma, trend = _backward_trend_segments(t, b, steps, segs, sigma, noise_m, min_z, frames_per_step, fp, dx)
+    if trend:
+        warnings.append(
+            f"inside its plateaus the block moves backward at {-trend / (fp * dx):.3f} of the puller "
+            f"speed ({trend * 1e9:.4g} nm/s): the elongation rises faster than the metadata's step of "
+            f"{dx * 1e9:.4g} nm per step (a wrong step size) or drifts; the plateaus were found on the "
+            "block position detrended by that speed"
+        )
 
     # -- plateaus
     P = len(segs)
@@ -876,10 +890,48 @@ def extract_events(trace: Trace, *, noise_m: float | None = None, min_z: float =
         warnings=warnings,
     )
     ev.creep_ratio, ev.creep_ratio_se = _creep_ratio(t, b, segs, sigma, fp * dx)
+    ev.segmentation_trend_m_per_s = trend
     ev.reduced = reduced_run(trace, ev)
     ev.regime = _classify(ev)
     ev.reduced.regime = ev.regime
     return ev
+
+
+BACKWARD_SIGMAS = 3.0
+"""A mean block speed within the plateaus this many standard errors below zero is not
+friction (the block only moves forward): the metadata's step is too small or the
+elongation drifts, and b, sloping inside every plateau, would be cut into pieces with
+backward jumps. The plateaus are then found on b detrended by that speed."""
+
+
+def _backward_trend_segments(t, b, steps, segs, sigma, noise_m, min_z, frames_per_step, fp, dx):
+    """Segments of b found after removing a significant backward speed within the
+    plateaus (:data:`BACKWARD_SIGMAS`); (segs, sigma, speed removed in m/s, 0 if none).
+
+    The speed is measured on the undetrended b inside the current plateaus, so each pass
+    gives the whole trend, not an increment; pieces of a cut plateau absorb part of it,
+    hence a few passes until the plateaus stop changing. Only the partition changes:
+    levels, slips and the fit keep b as the metadata give it, so a wrong step or a drift
+    still shows in the fit's stick-phase slopes, where the diagnosis can name it."""
+    trend = 0.0
+    puller_speed = fp * dx
+    for _ in range(4):
+        cr, cse = _creep_ratio(t, b, segs, sigma, puller_speed)
+        if not (math.isfinite(cr) and math.isfinite(cse) and cr < -BACKWARD_SIGMAS * cse):
+            break
+        new_trend = cr * puller_speed
+        if trend and abs(new_trend - trend) <= 0.02 * abs(trend):
+            break
+        trend = new_trend
+        detrended = b - trend * (t - t[0])
+        new_segs, sigma, _ = _segment_run(
+            detrended, steps, noise_m, min_z, frames_per_step, noise_floor=NOISE_FLOOR_STEPS * dx
+        )
+        same = len(new_segs) == len(segs) and all(np.array_equal(a.frames, c.frames) for a, c in zip(new_segs, segs))
+        segs = new_segs
+        if same:
+            break
+    return segs, sigma, trend
 
 
 def _creep_ratio(t, b, segs, sigma, puller_speed) -> tuple[float, float]:

@@ -239,6 +239,24 @@ def test_backward_jump_is_kept_and_reported():
     np.testing.assert_array_equal(ev.slips["trigger_step"], [30, 60, 90])
 
 
+@pytest.mark.parametrize("seed", [1, 2])
+def test_wrong_step_size_in_metadata_does_not_cut_plateaus(run30, seed):
+    """Metadata step 5 % short of the true one: b slopes back 2.2 nm per step, 230 nm
+    (2.5σ) over each 104-step plateau; the plateaus must still be the true ones, and the
+    trend is reported, not hidden."""
+    tr = run30.sample(noise_nm=90, seed=seed)
+    wrong = Trace(name=tr.name, time_s=tr.time_s, elongation=tr.elongation, puller=None,
+                  metadata={**tr.metadata, "step_size_nm": 46 / 1.05})
+    ev = extract_events(wrong)
+    np.testing.assert_array_equal(ev.slips["trigger_step"], run30.slips["step_index"])
+    true_speed = (46 / 1.05 - 46) * 1e-9 * 100  # m/s
+    assert ev.segmentation_trend_m_per_s == pytest.approx(true_speed, rel=0.2)
+    assert any("backward" in w and "step" in w for w in ev.warnings)
+    assert ev.to_json()["segmentation_trend_m_per_s"] == ev.segmentation_trend_m_per_s
+    # the right metadata leave b as it is
+    assert extract_events(tr).segmentation_trend_m_per_s == 0.0
+
+
 def test_given_noise_is_used_and_inputs_checked():
     tr = _staircase_trace([0.0, 1e-6, 2e-6], [20, 20, 20], NOISE, 6)
     ev = extract_events(tr, noise_m=100e-9)
