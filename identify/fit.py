@@ -486,6 +486,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
                        else "no run could be used")
     say(f"{len(run_data)} run(s) used, {len(excluded)} left out; building the NLP")
     prob = Problem(run_data, model, values, opts).build()
+    prob.progress = say
     start_given = dict(start)
     if opts.staged_start:
         from .start import staged_start, start_merit
@@ -560,6 +561,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         prob = Problem(new_runs, model, values, opts)
         prob.ev_M = _carry_horizons(M_prev, prob)
         prob.counter = counter  # the timing report covers every solve, not just the last
+        prob.progress = say
         prob.build()
         w_next = prob.settle_arcs(_carry_solution(M_prev, prob, best["w"]))
         sol = prob.solve(w_next)

@@ -70,6 +70,7 @@ STAT_TOL = 1e-4  # ½χ² the Gauss–Newton model may still promise at converge
 # ~0.5 µm slip: the adaptive steps make the slip length jump by ~0.5 pm between nearby
 # inputs, which held the solver at |g| ≈ 2e-7 for twenty iterations at 1e-7)
 FEAS_TOL = 1e-6
+PROGRESS_EVERY_S = 30.0  # a solve that runs longer reports its iterations this often
 COVARIANCE_REL_STEP = 1e-4  # secant step of the arc differences for the covariance (see central_differences)
 
 
@@ -219,6 +220,7 @@ class Problem:
         self.theta = ThetaMap.build(opts.free, dict(opts.bounds))
         self.arcs = arc_functions(model, opts.arc_reltol, opts.arc_abstol)
         self.counter = dict(arc_s=0.0, jac_s=0.0, arc_calls=0, jac_calls=0)
+        self.progress = None  # callable(str): the solver's iterations, for long solves
         self._layout()
 
     # ---------------------------------------------------------------- layout
@@ -595,6 +597,7 @@ class Problem:
         n_th = self.n_theta
         nu, lm = 1.0, 0.0
         status, success, it = "Maximum_Iterations_Exceeded", False, 0
+        said = t0
         r, g = self.evaluate(w)
         for it in range(1, opts.max_iter + 1):
             r, g, Jr, Jg = self.evaluate(w, jac=True)
@@ -662,6 +665,10 @@ class Problem:
             lm = lm / 10 if lm > 1e-3 else 0.0
             feas = float(np.abs(g).max()) if g.size else 0.0
             log.debug("GN it %d: f %.8g |g| %.2e dθ %.2e α %.2g lm %.1e", it, 0.5 * r @ r, feas, step_th, a, lm)
+            if self.progress is not None and time.perf_counter() - said >= PROGRESS_EVERY_S:
+                said = time.perf_counter()
+                self.progress(f"  iteration {it} of at most {opts.max_iter}: χ² {float(r @ r):.6g}, "
+                              f"constraint violation {feas:.2e}, {said - t0:.0f} s")
             if step_th < opts.tol and feas < feas_tol and abs(phi0 - phi1) <= opts.tol * (1 + phi0):
                 status, success = "Solve_Succeeded", True
                 break

@@ -207,6 +207,16 @@ def test_a_suspect_solution_is_solved_again_from_the_unstaged_start(small_traces
     assert res.solver["success"]
 
 
+def test_long_solves_report_their_iterations(small_traces, monkeypatch):
+    import identify.nlp as nlp
+
+    monkeypatch.setattr(nlp, "PROGRESS_EVERY_S", 0.0)
+    said = []
+    fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}), progress=said.append)
+    its = [m for m in said if m.strip().startswith("iteration")]
+    assert its and "χ²" in its[0] and "of at most 100" in its[0]
+
+
 def test_what_makes_a_solution_suspect(small_fit):
     from identify.fit import _suspect
 
