@@ -176,6 +176,8 @@ class FitResult:
         for r in self.runs:
             if r["used"]:
                 lines.append(f"    {r['name']}: used, {r['n_slips']} slips, {r['regime']} ({r['kind']})")
+                # what the event extraction saw (a wrong step size, backward jumps, ...)
+                lines += [f"        warning: {w}" for w in r.get("warnings", [])]
             else:
                 lines.append(f"    {r['name']}: LEFT OUT: {r['reason']}")
         t = self.timing
@@ -300,9 +302,11 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
         ev = rd.events
         runs.append(dict(name=rd.name, used=True, reason=None, kind=rd.kind,
                          n_slips=int(len(rd.trigger_steps)) if rd.kind == "events" else 0,
-                         regime=getattr(ev, "regime", "?"), noise_nm=rd.sigma * 1e9))
+                         regime=getattr(ev, "regime", "?"), noise_nm=rd.sigma * 1e9,
+                         warnings=list(getattr(ev, "warnings", []))))
     for name, why in excluded:
-        runs.append(dict(name=name, used=False, reason=why, kind=None, n_slips=0, regime=None, noise_nm=None))
+        runs.append(dict(name=name, used=False, reason=why, kind=None, n_slips=0, regime=None, noise_nm=None,
+                         warnings=[]))
     finite = [x["f"] for x in results if np.isfinite(x["f"])]
     best_f = min(finite) if finite else float("nan")
     found = sum(1 for f in finite if abs(f - best_f) <= 1e-6 * max(1.0, abs(best_f)))

@@ -120,6 +120,16 @@ def test_report_and_json(small_fit):
     assert p["free"] and p["unit"] == "s" and p["ci95"][0] < p["value"] < p["ci95"][1]
     assert js["parameters"]["v_stick"]["free"] is False
     assert {"status", "iterations", "wall_time_s"} <= set(js["solver"])
+    assert all(isinstance(r["warnings"], list) for r in js["runs"])
+
+
+def test_report_shows_what_the_event_extraction_warned(small_fit):
+    import copy
+
+    res = copy.copy(small_fit)  # (a deep copy would copy the compiled CasADi problem)
+    res.runs = [dict(r) for r in small_fit.runs]
+    res.runs[0]["warnings"] = ["inside its plateaus the block moves backward at 0.050 of the puller speed"]
+    assert "warning: inside its plateaus the block moves backward" in res.report()
 
 
 def test_plots_written(small_fit, tmp_path):
