@@ -22,6 +22,12 @@ from .heldout import heldout_residuals
 __all__ = ["CandidateTask", "run_candidate"]
 
 CANDIDATE_STAT_TOL = 1e-2
+EXTRA_ROUNDS = 2
+"""A refit that stops at its iteration limit while its last round still gained more than
+:data:`ROUND_GAIN` likelihood units is continued from where it stopped, up to this many
+more rounds: measured, a rejuvenation refit (dc from the baseline's 20 nm towards the
+truth of 1 µm) stopped at dc = 0.18 µm, significant but unconverged and so never named."""
+ROUND_GAIN = 1.0
 
 
 @dataclass
@@ -63,6 +69,21 @@ def _problem(task: CandidateTask, free: tuple):
     if task.ev_M is not None and len(task.ev_M) == prob.E:
         prob.ev_M = np.array(task.ev_M)
     return prob.build()
+
+
+def _solve_on(prob, w0, f0: float) -> dict:
+    """Solve from w0; continue from where it stopped while rounds that hit the iteration
+    limit still gain (:data:`EXTRA_ROUNDS`)."""
+    sol = prob.solve(w0)
+    its, wall, before = sol["iterations"], sol["wall_s"], f0
+    for _ in range(EXTRA_ROUNDS):
+        if sol["status"] != "Maximum_Iterations_Exceeded" or not (before - sol["f"] > ROUND_GAIN):
+            break
+        before = sol["f"]
+        sol = prob.solve(sol["w"])
+        its, wall = its + sol["iterations"], wall + sol["wall_s"]
+    sol["iterations"], sol["wall_s"] = its, wall
+    return sol
 
 
 def run_candidate(task: CandidateTask) -> dict:
@@ -109,8 +130,8 @@ def run_candidate(task: CandidateTask) -> dict:
             if group:
                 todo.append(min(group, key=lambda x: x[2]))
         best = None
-        for w0, _, _ in todo:
-            sol = prob.solve(w0)
+        for w0, _, f0 in todo:
+            sol = _solve_on(prob, w0, f0)
             if np.isfinite(sol["f"]) and (best is None or sol["f"] < best["f"]):
                 best = sol
         if best is None:

@@ -135,3 +135,32 @@ def test_dask_local_cluster(small_fit):
                        options=DiagnosisOptions(effects=("drift", "damping"), dask=cluster.scheduler_address))
     assert {c["effect"] for c in res.candidates} == {"drift", "damping"}
     assert all(c["ok"] for c in res.candidates)
+
+
+class _FakeProblem:
+    """prob.solve returning a scripted sequence of (status, f)."""
+
+    def __init__(self, script):
+        self.script, self.starts = list(script), []
+
+    def solve(self, w):
+        self.starts.append(w)
+        status, f = self.script.pop(0)
+        return dict(w=len(self.starts), f=f, status=status, iterations=20, wall_s=1.0)
+
+
+@pytest.mark.parametrize("script, rounds", [
+    ([("Maximum_Iterations_Exceeded", 500.0), ("Maximum_Iterations_Exceeded", 300.0),
+      ("Maximum_Iterations_Exceeded", 290.0)], 3),  # still gaining: two more rounds, then stop
+    ([("Maximum_Iterations_Exceeded", 500.0), ("Solve_Succeeded", 450.0)], 2),
+    ([("Maximum_Iterations_Exceeded", 999.5)], 1),  # gained less than one unit: done
+    ([("Solve_Succeeded", 10.0)], 1),
+])
+def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds):
+    from identify.candidates import EXTRA_ROUNDS, _solve_on
+
+    prob = _FakeProblem(script)
+    sol = _solve_on(prob, 0, 1000.0)
+    assert len(prob.starts) == rounds <= EXTRA_ROUNDS + 1
+    assert prob.starts[1:] == list(range(1, rounds))  # each round from where the last stopped
+    assert sol["iterations"] == 20 * rounds and sol["f"] == script[rounds - 1][1]
