@@ -80,8 +80,16 @@ def _solve_on(prob, w0, f0: float) -> dict:
         if sol["status"] != "Maximum_Iterations_Exceeded" or not (before - sol["f"] > ROUND_GAIN):
             break
         before = sol["f"]
-        sol = prob.solve(sol["w"])
-        its, wall = its + sol["iterations"], wall + sol["wall_s"]
+        try:
+            if prob.E:
+                prob.size_arcs(sol["w"])  # the slips may have grown past the arcs' horizons
+            more = prob.solve(sol["w"])
+        except Exception:  # the finished round stands
+            break
+        its, wall = its + more["iterations"], wall + more["wall_s"]
+        if not (np.isfinite(more["f"]) and more["f"] <= sol["f"]):
+            break
+        sol = more
     sol["iterations"], sol["wall_s"] = its, wall
     return sol
 

@@ -36,6 +36,10 @@ segmentation
     slip boundary moves to the best split between two frames that straddle a step
     (the block can only start moving at a step), unless a split inside a step period
     fits better by more than 9σ̂² of RSS (a slip delayed by its creep nucleation).
+    (5) a block that seems to move backward within its plateaus (a too small step in
+    the metadata, or a drift of the elongation) cuts every plateau into pieces: when
+    that speed is significant (:data:`BACKWARD_SIGMAS`) the segmentation is repeated on
+    b detrended by it, with a warning; everything else keeps b as given.
 trigger step
     A slip starts at a step instant, and the block sits at its old level on every frame
     before that step. The trigger step of a slip is n(t) of the first frame after the
@@ -602,8 +606,9 @@ class RunEvents:
         plateaus.
     segmentation_trend_m_per_s : float
         Speed removed from b before the plateaus were found (negative: the block seemed
-        to move backward within its plateaus, :data:`BACKWARD_SIGMAS`); 0 when b was
-        segmented as it is.
+        to move backward within its plateaus, :data:`BACKWARD_SIGMAS`); 0 when none was
+        significant. The slips' lengths and z are those of the b as given, so with long
+        rests a slip found on the detrended b can show a smaller z.
     """
 
     trace: Trace
@@ -811,8 +816,10 @@ def extract_events(trace: Trace, *, noise_m: float | None = None, min_z: float =
             break
         tried.add(new_phi)
         phi = new_phi
+    segs, sigma, trend, seg_warnings = _backward_trend_segments(
+        t, b, steps, segs, sigma, seg_warnings, noise_m, min_z, frames_per_step, fp, dx
+    )
     warnings += seg_warnings
-    segs, sigma, trend = _backward_trend_segments(t, b, steps, segs, sigma, noise_m, min_z, frames_per_step, fp, dx)
     if trend:
         warnings.append(
             f"inside its plateaus the block moves backward at {-trend / (fp * dx):.3f} of the puller "
@@ -904,9 +911,10 @@ elongation drifts, and b, sloping inside every plateau, would be cut into pieces
 backward jumps. The plateaus are then found on b detrended by that speed."""
 
 
-def _backward_trend_segments(t, b, steps, segs, sigma, noise_m, min_z, frames_per_step, fp, dx):
+def _backward_trend_segments(t, b, steps, segs, sigma, seg_warnings, noise_m, min_z, frames_per_step, fp, dx):
     """Segments of b found after removing a significant backward speed within the
-    plateaus (:data:`BACKWARD_SIGMAS`); (segs, sigma, speed removed in m/s, 0 if none).
+    plateaus (:data:`BACKWARD_SIGMAS`); (segs, sigma, speed removed in m/s or 0 if none,
+    the warnings of the segmentation kept).
 
     The speed is measured on the undetrended b inside the current plateaus, so each pass
     gives the whole trend, not an increment; pieces of a cut plateau absorb part of it,
@@ -924,14 +932,14 @@ def _backward_trend_segments(t, b, steps, segs, sigma, noise_m, min_z, frames_pe
             break
         trend = new_trend
         detrended = b - trend * (t - t[0])
-        new_segs, sigma, _ = _segment_run(
+        new_segs, sigma, seg_warnings = _segment_run(
             detrended, steps, noise_m, min_z, frames_per_step, noise_floor=NOISE_FLOOR_STEPS * dx
         )
         same = len(new_segs) == len(segs) and all(np.array_equal(a.frames, c.frames) for a, c in zip(new_segs, segs))
         segs = new_segs
         if same:
             break
-    return segs, sigma, trend
+    return segs, sigma, trend, seg_warnings
 
 
 def _creep_ratio(t, b, segs, sigma, puller_speed) -> tuple[float, float]:

@@ -585,6 +585,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     best["triggers_moved"] = refined
     best["slips_inserted"] = inserted
     say("covariance")
+    prob.progress = None  # the result keeps the problem; the caller's callback is not its business
     result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,
                           time.perf_counter() - wall0)
     return result
