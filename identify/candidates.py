@@ -28,6 +28,12 @@ EXTRA_ROUNDS = 2
 more rounds: measured, a rejuvenation refit (dc from the baseline's 20 nm towards the
 truth of 1 µm) stopped at dc = 0.18 µm, significant but unconverged and so never named."""
 ROUND_GAIN = 1.0
+STALLED = "Stalled_Within_Tolerance"
+"""Status of a refit whose last round of iterations, at the iteration limit, gained less
+than :data:`ROUND_GAIN`: its Δnll is known to better than a likelihood unit, which is
+what the scores need, though the step test has not passed (finite-difference noise of
+the arcs can hold it off for ever). Measured on withheld spring-nonlinearity data: p = 0,
+95 % of the held-out gap closed, β the same after 20 more iterations."""
 
 
 @dataclass
@@ -73,12 +79,17 @@ def _problem(task: CandidateTask, free: tuple):
 
 def _solve_on(prob, w0, f0: float) -> dict:
     """Solve from w0; continue from where it stopped while rounds that hit the iteration
-    limit still gain (:data:`EXTRA_ROUNDS`)."""
+    limit still gain (:data:`EXTRA_ROUNDS`); a round that gained less than
+    :data:`ROUND_GAIN` is reported :data:`STALLED`."""
     sol = prob.solve(w0)
-    its, wall, before = sol["iterations"], sol["wall_s"], f0
-    for _ in range(EXTRA_ROUNDS):
-        if sol["status"] != "Maximum_Iterations_Exceeded" or not (before - sol["f"] > ROUND_GAIN):
+    its, wall, before, rounds = sol["iterations"], sol["wall_s"], f0, 0
+    while sol["status"] == "Maximum_Iterations_Exceeded":
+        if not (before - sol["f"] > ROUND_GAIN):
+            sol["status"] = STALLED
             break
+        if rounds == EXTRA_ROUNDS:
+            break
+        rounds += 1
         before = sol["f"]
         try:
             if prob.E:

@@ -34,7 +34,7 @@ from typing import Any, Callable
 import numpy as np
 from scipy import stats
 
-from .candidates import CandidateTask, run_candidate
+from .candidates import STALLED, CandidateTask, run_candidate
 from .effects import EFFECTS, get_effect
 from .events import _jsonable  # NaN/inf -> null, numpy -> Python
 from .fit import FitOptions, fit
@@ -579,7 +579,7 @@ def _try(best, others):
                + ") and fit equally well (|ΔΔAIC| < 10)")
         closes = any(c.get("closed_fraction", 0.0) >= MIN_CLOSED for c in [best] + [t for t, _ in ties])
         return None, dict(effects=grp, why=why, closes=bool(closes))
-    if not str(best.get("status", "")).startswith("Solve_Succeeded"):
+    if not str(best.get("status", "")).startswith(("Solve_Succeeded", STALLED)):
         best["note"] = f"significant but its refit did not converge ({best['status']}); " + best["estimate_text"]
         return None, None
     closed = _closed_fraction(best)

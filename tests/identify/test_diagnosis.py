@@ -154,17 +154,20 @@ class _FakeProblem:
         return dict(w=len(self.starts), f=f, status=status, iterations=20, wall_s=1.0)
 
 
-@pytest.mark.parametrize("script, rounds", [
-    ([("Maximum_Iterations_Exceeded", 500.0), ("Maximum_Iterations_Exceeded", 300.0),
-      ("Maximum_Iterations_Exceeded", 290.0)], 3),  # still gaining: two more rounds, then stop
-    ([("Maximum_Iterations_Exceeded", 500.0), ("Solve_Succeeded", 450.0)], 2),
-    ([("Maximum_Iterations_Exceeded", 999.5)], 1),  # gained less than one unit: done
-    ([("Solve_Succeeded", 10.0)], 1),
+MAX_IT = "Maximum_Iterations_Exceeded"
+
+
+@pytest.mark.parametrize("script, rounds, status", [
+    ([(MAX_IT, 500.0), (MAX_IT, 300.0), (MAX_IT, 290.0)], 3, MAX_IT),  # still gaining after two more
+    ([(MAX_IT, 500.0), (MAX_IT, 499.6)], 2, "Stalled_Within_Tolerance"),  # a round that found nothing
+    ([(MAX_IT, 500.0), ("Solve_Succeeded", 450.0)], 2, "Solve_Succeeded"),
+    ([(MAX_IT, 999.5)], 1, "Stalled_Within_Tolerance"),  # never left the start
+    ([("Solve_Succeeded", 10.0)], 1, "Solve_Succeeded"),
     # a round that ends worse, or raises, leaves the round before it standing
-    ([("Maximum_Iterations_Exceeded", 500.0), ("Maximum_Iterations_Exceeded", 600.0)], 2),
-    ([("Maximum_Iterations_Exceeded", 500.0), RuntimeError("arc failed")], 2),
+    ([(MAX_IT, 500.0), (MAX_IT, 600.0)], 2, MAX_IT),
+    ([(MAX_IT, 500.0), RuntimeError("arc failed")], 2, MAX_IT),
 ])
-def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds):
+def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds, status):
     from identify.candidates import EXTRA_ROUNDS, _solve_on
 
     prob = _FakeProblem(script)
@@ -174,3 +177,18 @@ def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds):
     done = [s for s in script[:rounds] if not isinstance(s, Exception)]
     assert sol["iterations"] == 20 * len(done)
     assert sol["f"] == min(f for _, f in done)
+    assert sol["status"] == status
+
+
+@pytest.mark.parametrize("status, named", [("Solve_Succeeded", True), ("Stalled_Within_Tolerance", True),
+                                           (MAX_IT, False)])
+def test_a_stalled_refit_can_be_named_an_unconverged_one_cannot(status, named):
+    from identify.diagnosis import _try
+
+    best = dict(effect="spring_nonlinearity", dr=np.ones(3), delta_aic=-14176.0, status=status,
+                estimate_text="beta = 9.8e8", gap=dict(noise_um=0.02), heldout_gap_before_um=0.097,
+                heldout_gap_after_um=0.021)
+    chosen, group = _try(best, [])
+    assert (chosen is best) is named and group is None
+    if not named:
+        assert "did not converge" in best["note"]
