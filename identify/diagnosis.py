@@ -239,7 +239,7 @@ def _json_default(o):
 _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delta_bic", "confounded_with",
               "gap_before_um", "gap_after_um", "heldout_gap_before_um", "heldout_gap_after_um", "significant",
               "named", "note", "ok", "status", "iterations", "wall_s", "law", "r2_with_model",
-              "closed_fraction", "estimates")
+              "closed_fraction", "estimates", "rounds")
 
 
 def _cand_json(c: dict) -> dict:

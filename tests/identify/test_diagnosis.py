@@ -178,6 +178,7 @@ def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds, stat
     assert sol["iterations"] == 20 * len(done)
     assert sol["f"] == min(f for _, f in done)
     assert sol["status"] == status
+    assert len(sol["rounds"]) == len(done) and sol["rounds"][0] == (script[0][0], script[0][1])
 
 
 @pytest.mark.parametrize("status, named", [("Solve_Succeeded", True), ("Stalled_Within_Tolerance", True),
