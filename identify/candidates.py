@@ -18,6 +18,7 @@ import numpy as np
 
 from .features import feature_values, gap
 from .heldout import heldout_residuals
+from .nlp import STALLED
 
 __all__ = ["CandidateTask", "run_candidate"]
 
@@ -28,11 +29,10 @@ EXTRA_ROUNDS = 2
 more rounds: measured, a rejuvenation refit (dc from the baseline's 20 nm towards the
 truth of 1 µm) stopped at dc = 0.18 µm, significant but unconverged and so never named."""
 ROUND_GAIN = 1.0
-STALLED = "Stalled_Within_Tolerance"
-"""Status of a refit whose last round of iterations, at the iteration limit, gained less
-than :data:`ROUND_GAIN`: its Δnll is known to better than a likelihood unit, which is
-what the scores need, though the step test has not passed (finite-difference noise of
-the arcs can hold it off for ever)."""
+# STALLED (from :mod:`identify.nlp`) is also the status of a refit whose last round of
+# iterations, at the iteration limit, gained less than ROUND_GAIN: its Δnll is known to
+# better than a likelihood unit, which is what the scores need, though the step test has
+# not passed (finite-difference noise of the arcs can hold it off for ever).
 
 
 @dataclass

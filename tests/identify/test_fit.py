@@ -72,9 +72,9 @@ def test_nlp_jacobians_match_central_differences(small_traces):
 
 
 def test_arc_difference_schemes_agree(small_traces):
-    """Forward differences (the iterations) and the covariance's secant central
+    """Forward differences (the iterations' step) and the covariance's secant central
     differences against central differences at 1e-6, arc by arc, input by input."""
-    from identify.nlp import COVARIANCE_REL_STEP
+    from identify.nlp import COVARIANCE_REL_STEP, SOLVE_REL_STEP
 
     runs, _, coating = prepare_runs(small_traces)
     model = Model(get_law("exponential"))
@@ -85,7 +85,7 @@ def test_arc_difference_schemes_agree(small_traces):
     rows = prob._cb_jac.rows
     n = A.shape[1]
     ref = prob.arcs.evaluate_jacobian(A, rows=rows)[1].reshape(2, n, -1)[:, :, rows]
-    for kw, tol in ((dict(scheme="forward"), 1e-3), (dict(rel_step=COVARIANCE_REL_STEP), 1e-4)):
+    for kw, tol in ((dict(scheme="forward", rel_step=SOLVE_REL_STEP), 1e-3), (dict(rel_step=COVARIANCE_REL_STEP), 1e-4)):
         J = prob.arcs.evaluate_jacobian(A, rows=rows, **kw)[1].reshape(2, n, -1)[:, :, rows]
         rel = np.abs(J - ref) / (np.abs(ref) + 1e-3 * np.abs(ref).max(axis=(0, 1)))
         assert np.median(rel) < tol, kw
@@ -225,6 +225,62 @@ def test_long_solves_report_their_iterations(small_traces, monkeypatch):
     fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}), progress=said.append)
     its = [m for m in said if m.strip().startswith("iteration")]
     assert its and "χ²" in its[0] and "of at most 100" in its[0]
+
+
+def _off_solution(small_fit):
+    """The fitted problem and its solution with one slip-length constraint violated by 1 nm."""
+    prob, w = small_fit.problem, small_fit.w.copy()
+    e = prob.E // 2
+    w[prob.i_x + prob.ev_prev[e] + 1] += 1e-3  # the plateau after slip e, 1 nm up
+    return prob, w, e
+
+
+def test_a_solve_whose_arc_jacobian_is_wrong_stops_as_stalled(small_fit, monkeypatch):
+    """Measured: one arc's finite-difference row with the wrong sign held a solve at α ~1e-4
+    for its 100 iterations; it now stops after STALL_ITERS idle iterations."""
+    import identify.nlp as nlp
+
+    prob, w, e = _off_solution(small_fit)
+    exact = prob.solve_gn(w)
+    assert exact["success"] and exact["iterations"] <= 5
+    true_evaluate = prob.evaluate
+
+    def wrong_row(w, jac=False):
+        out = true_evaluate(w, jac)
+        if jac:
+            Jg = out[3].tolil()
+            Jg[e, :] = -Jg[e, :]  # the slip's own row points the wrong way
+            out = (*out[:3], Jg.tocsc())
+        return out
+
+    monkeypatch.setattr(prob, "evaluate", wrong_row)
+    res = prob.solve_gn(w)
+    assert res["status"] in ("Stalled", nlp.STALLED), res["status"]
+    assert res["iterations"] <= nlp.STALL_ITERS + 2
+    # nothing is lost: the point it stops at is no worse than where it started
+    r0, g0 = true_evaluate(w)
+    r1, g1 = true_evaluate(res["w"])
+    assert 0.5 * r1 @ r1 <= 0.5 * r0 @ r0 + 1e-9
+
+
+def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, monkeypatch):
+    import identify.nlp as nlp
+
+    prob, w = small_fit.problem, small_fit.w
+    schemes = []
+
+    def fake_gn(w0, fixed=None):
+        cb = prob._cb_jac
+        schemes.append((cb.scheme, cb.rel_step))
+        if len(schemes) == 1:
+            return dict(w=w0, f=2.0, status="Stalled", success=False, iterations=7, wall_s=1.0)
+        return dict(w=w0, f=1.0, status="Solve_Succeeded", success=True, iterations=3, wall_s=0.5)
+
+    monkeypatch.setattr(prob, "solve_gn", fake_gn)
+    res = prob.solve(w)
+    assert schemes == [("forward", nlp.SOLVE_REL_STEP), ("central", nlp.SOLVE_REL_STEP)]
+    assert res["status"] == "Solve_Succeeded" and res["iterations"] == 10 and res["wall_s"] == 1.5
+    assert (prob._cb_jac.scheme, prob._cb_jac.rel_step) == ("forward", nlp.SOLVE_REL_STEP)
 
 
 def test_what_makes_a_solution_suspect(small_fit):
