@@ -132,7 +132,7 @@ class ArcFunctions:
         relative error 1e-5 to 1e-7 per input, 95th percentile ≤ 6e-3 — enough for
         Gauss–Newton steps at 1.6× less integration, not for the covariance. The
         default step is at the arcs' integration noise for some arcs (a wrong sign was
-        measured); the solver passes 1e-5 (``identify.nlp.SOLVE_REL_STEP``).
+        measured); the solver passes 1e-4 (``identify.nlp.SOLVE_REL_STEP``).
         Returns y (5 × n) and J (2 × n_in·n), arc e's block in columns
         e·n_in … (e+1)·n_in − 1.
         """

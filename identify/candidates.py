@@ -71,6 +71,9 @@ def _problem(task: CandidateTask, free: tuple):
     prob.stat_tol = CANDIDATE_STAT_TOL
     # continuity to 10 pm: finite-difference noise of the arcs keeps ~1e-6 µm
     prob.feas_tol = 1e-5
+    # and a refit that stalls is good enough if its Δnll is known to a likelihood unit,
+    # as for a round that stops at the iteration limit
+    prob.stall_tol = ROUND_GAIN
     if task.ev_M is not None and len(task.ev_M) == prob.E:
         prob.ev_M = np.array(task.ev_M)
     return prob.build()

@@ -255,12 +255,10 @@ def test_a_solve_whose_arc_jacobian_is_wrong_stops_as_stalled(small_fit, monkeyp
 
     monkeypatch.setattr(prob, "evaluate", wrong_row)
     res = prob.solve_gn(w)
-    assert res["status"] in ("Stalled", nlp.STALLED), res["status"]
-    assert res["iterations"] <= nlp.STALL_ITERS + 2
-    # nothing is lost: the point it stops at is no worse than where it started
-    r0, g0 = true_evaluate(w)
-    r1, g1 = true_evaluate(res["w"])
-    assert 0.5 * r1 @ r1 <= 0.5 * r0 @ r0 + 1e-9
+    # stopped early, and not called converged: the 1 nm violation is still there
+    assert res["status"] == "Stalled" and not res["success"], res["status"]
+    assert res["iterations"] < 12  # the damping alone would fail the line search after 12
+    assert np.abs(true_evaluate(res["w"])[1]).max() > nlp.STALL_FEAS
 
 
 def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, monkeypatch):
