@@ -695,6 +695,7 @@ class Problem:
                     accepted = True
                     break
                 a *= 0.5
+            if not accepted:
                 log.debug("GN it %d rejected: phi %.6g dphi %.3g |d| %.3g nu %.3g lm %.1e",
                           it, phi0, dphi, np.max(np.abs(d)), nu, lm)
                 lm = max(10 * lm, 1e-3)

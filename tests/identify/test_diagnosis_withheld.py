@@ -57,7 +57,8 @@ DAMPING_ABSORBED = pytest.mark.xfail(strict=True, reason=(
 
 
 @pytest.mark.parametrize("eid", ["drift", pytest.param("step_size", marks=STEP_SIZE_FAILS),
-                                 pytest.param("damping", marks=DAMPING_ABSORBED), "load_offset"])
+                                 pytest.param("damping", marks=DAMPING_ABSORBED), "load_offset",
+                                 "spring_nonlinearity"])
 def test_withheld_effect_is_named(eid):
     traces = withheld_dataset(eid, conditions=CONDITIONS, base={"A": 0.015})
     res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))

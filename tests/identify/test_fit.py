@@ -261,6 +261,23 @@ def test_a_solve_whose_arc_jacobian_is_wrong_stops_as_stalled(small_fit, monkeyp
     assert np.abs(true_evaluate(res["w"])[1]).max() > nlp.STALL_FEAS
 
 
+def test_a_solve_whose_line_search_always_fails_does_not_move(small_fit, monkeypatch):
+    """Every trial point worse: the damping escalates and the solve ends where it began."""
+    prob, w, _ = _off_solution(small_fit)
+    true_evaluate = prob.evaluate
+
+    def worse_away(x, jac=False):
+        out = true_evaluate(x, jac)
+        if not jac and not np.array_equal(x, w):
+            out = (out[0] + 10.0, out[1])
+        return out
+
+    monkeypatch.setattr(prob, "evaluate", worse_away)
+    res = prob.solve_gn(w)
+    assert res["status"] == "Line_Search_Failed" and not res["success"]
+    assert np.array_equal(res["w"], w)
+
+
 def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, monkeypatch):
     import identify.nlp as nlp
 
