@@ -72,15 +72,16 @@ STAT_TOL = 1e-4  # ½χ² the Gauss–Newton model may still promise at converge
 FEAS_TOL = 1e-6
 PROGRESS_EVERY_S = 30.0  # a solve that runs longer reports its iterations this often
 # a solve that gains less than stat_tol of merit in STALL_ITERS accepted iterations in
-# a row (rejected ones, which raise the damping, neither count nor reset) has stalled (measured: 100 iterations at alpha ~1e-4, |g| stuck at 1 nm on one slip whose
-# arc Jacobian was wrong in sign); it is converged within tolerance (STALLED) if the
+# a row (rejected ones, which raise the damping, neither count nor reset) has stalled
+# (measured: 100 iterations at alpha ~1e-4, |g| stuck at 1 nm on one slip whose arc
+# Jacobian was wrong in sign). It is converged within tolerance (STALLED) if the
 # Gauss-Newton model puts its solution within STALL_TOL of 1/2 chi2 (parameters within
-# ~0.14 standard errors: 1/2 chi2 changes by 1/2 over one), else it stops as "Stalled"
+# ~0.14 standard errors: 1/2 chi2 changes by 1/2 over one) and its constraints hold to
+# STALL_FEAS, 0.1 nm of slip length (1e-4 of a slip, ~1e-2 of a plateau's precision at
+# 90 nm; measured, a solve converged in all but name stalled at |g| = 1.9 pm, the arcs'
+# integration noise, above FEAS_TOL); else it stops as "Stalled"
 STALL_ITERS = 4
 STALL_TOL = 0.01
-# ... and if its constraints hold to 0.1 nm of slip length (1e-4 of a slip, ~1e-2 of a
-# plateau's precision at 90 nm): measured, a solve that had converged in all but name
-# stalled at |g| = 1.9 pm, the arcs' integration noise, above FEAS_TOL
 STALL_FEAS = 1e-4
 STALLED = "Stalled_Within_Tolerance"
 # difference step of the arcs while the solver iterates. The arcs' integration noise
@@ -723,9 +724,9 @@ class Problem:
                     wall_s=time.perf_counter() - t0)
 
     def _stalled(self, it, r, Jr, d, g, damped: bool) -> tuple[str, bool]:
-        """Status of a solve whose line search keeps failing on a direction whose
-        predicted gain the functions do not give (finite-difference arc rows that are
-        wrong where an arc sits on a kink or in its integration noise). Within tolerance
+        """Status of a solve whose accepted steps no longer gain: the functions do not
+        give what the linearisation predicts (finite-difference arc rows that are wrong
+        where an arc sits on a kink or in its integration noise). Within tolerance
         if the constraints hold to ``STALL_FEAS`` and the Gauss–Newton model puts ½χ² at
         its feasible stationary point within ``STALL_TOL`` of its value here
         (½‖r + J d‖² − ½‖r‖² for the full step d); never when the step was damped, whose
