@@ -311,6 +311,33 @@ def test_what_makes_a_solution_suspect(small_fit):
     assert _suspect(prob, dict(f=np.inf, success=False)) == "no solution"
 
 
+def test_start_takes_only_what_the_reduced_analysis_determines(monkeypatch):
+    """A reduced (Eq. 9) fit over two rest times can put μmin anywhere (measured 0.004 ±
+    0.24 on the two-condition plan); such a value must not start the full fit."""
+    from types import SimpleNamespace
+
+    import identify.reduced as reduced
+    from identify.fit import _start_values
+
+    preset = parameter_set("FOTAS")
+    fitted = SimpleNamespace(converged=True, parameters=dict(mu_max=0.83, mu_min=0.004, tau=0.044),
+                             stderr=dict(mu_max=0.0009, mu_min=0.24, tau=0.005))
+    monkeypatch.setattr(reduced, "reduced_fit", lambda red, laws: SimpleNamespace(fits={"exponential": fitted}))
+    runs = [SimpleNamespace(kind="events", events=SimpleNamespace(reduced=object())) for _ in range(8)]
+    law, opts = get_law("exponential"), FitOptions()
+    start, source = _start_values(runs, law, preset, opts)
+    assert start["mu_max"] == 0.83 and start["tau"] == 0.044
+    assert start["mu_min"] == preset["mu_min"] and start["A"] == preset["A"]
+    assert "preset for mu_min" in source
+    fitted.stderr["mu_min"] = 0.07  # 0.004 ± 0.07 still includes 0; 0.6 ± 0.07 does not
+    fitted.parameters["mu_min"] = 0.6
+    start, source = _start_values(runs, law, preset, opts)
+    assert start["mu_min"] == 0.6 and source == "reduced analysis (mu_max, mu_min, tau)"
+    fitted.stderr = dict(mu_max=np.nan, mu_min=np.nan, tau=np.nan)  # nothing determined
+    start, source = _start_values(runs, law, preset, opts)
+    assert source == "preset" and start == {n: preset[n] for n in opts.free}
+
+
 @pytest.mark.parametrize("kwargs, match", [
     (dict(free=("mu_max", "nonsense")), "nonsense"),
     (dict(free=("mu_max",), fixed={"mu_max": 0.7}), "both free and fixed"),
