@@ -217,6 +217,34 @@ def test_a_suspect_solution_is_solved_again_from_the_unstaged_start(small_traces
     assert res.solver["success"]
 
 
+def test_a_suspect_solution_is_solved_again_from_a_rejected_staged_start(small_traces, monkeypatch):
+    """The start's χ² does not say where a solve ends (the 5-run benchmark: staged start
+    rejected, the other stalled): a suspect solution tries the start that was not taken."""
+    import importlib
+
+    import identify.start as start_mod
+
+    fit_mod = importlib.import_module("identify.fit")
+    truth = parameter_set("FOTAS")
+    monkeypatch.setattr(start_mod, "staged_start",
+                        lambda prob, start, **kw: (dict(start, tau=8 * truth["tau"], A=1e-10), {}))
+    calls = []
+
+    def suspect_once(prob, res):
+        calls.append(res["f"])
+        return "forced by the test" if len(calls) == 1 else ""
+
+    monkeypatch.setattr(fit_mod, "_suspect", suspect_once)
+    res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}))
+    assert "staged start rejected" in res.start_source
+    assert "solved again from the staged start: " in res.start_source
+    assert res.multistart["starts"] == 2
+    assert res["tau"].value == pytest.approx(truth["tau"], rel=0.25)
+    # the report's init is the start the kept solution came from
+    kept_staged = res.start_source.endswith("kept") and "not kept" not in res.start_source
+    assert (res["tau"].init == 8 * truth["tau"]) == kept_staged
+
+
 def test_long_solves_report_their_iterations(small_traces, monkeypatch):
     import identify.nlp as nlp
 
