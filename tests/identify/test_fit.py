@@ -1,6 +1,7 @@
 """Full-model identification: NLP derivatives, bad input, the result object, the CLI,
 and (slow) seeded parameter recovery."""
 
+import functools
 import json
 import warnings
 
@@ -412,6 +413,7 @@ RECOVERY_CONDITIONS = [(2.13, 5, 100), (2.13, 5, 30), (2.13, 10, 100), (2.13, 20
                        (20.3, 60, 100), (20.3, 30, 100), (20.3, 30, 30), (2.13, 30, 10)]
 
 
+@functools.cache  # the FOTAS fit serves two tests; it takes minutes
 def _recovery(coating, noise_nm):
     travel = [min(60.0, max(30.0, 3 * 0.8 * nb / k)) for k, nb, _ in RECOVERY_CONDITIONS]
     traces = _traces(RECOVERY_CONDITIONS, coating=coating, noise_nm=noise_nm, travel_um=travel)
