@@ -373,9 +373,11 @@ REDUCED_Z = 1.96  # a reduced-analysis value starts the fit only if its 95 % int
 
 
 def _start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict, str]:
-    """Start from the reduced analysis where it can say something (DESIGN.md §2)."""
+    """Start from the reduced analysis where it can say something (DESIGN.md §2): its
+    μmax, μmin and τ, when the Eq. 9 fit determines all three, else the preset; values
+    the caller gives override either. Returns the start and where each value came from."""
     start = {n: preset[n] for n in opts.free}
-    source = "preset"
+    origin = {n: "preset" for n in start}
     ev_runs = [r.events for r in runs if r.kind == "events"]
     try:
         from .reduced import reduced_fit
@@ -383,34 +385,37 @@ def _start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict
         red = [ev.reduced for ev in ev_runs if getattr(ev, "reduced", None) is not None]
         if len(red) >= 4 and law.name in ("exponential", "logistic"):
             fitted = reduced_fit(red, laws=(law.name,)).fits[law.name]
-            if fitted.converged:
-                # measured on the two-condition plan's Monte Carlo: the Eq. 9 fit over two
-                # rest times put μmin at 0.004-0.07 ± 0.2 in 4 of 20 repeats, and those fits
-                # ended far from the truth; a value the reduced fit cannot tell from zero
-                # is no better a start than the preset
-                used, kept = [], []
-                for n in ("mu_max", "mu_min", "tau"):
-                    if n not in start or n not in fitted.parameters:
-                        continue
-                    v, se = fitted.parameters[n], fitted.stderr.get(n, np.nan)
-                    if np.isfinite(v) and np.isfinite(se) and abs(v) > REDUCED_Z * se:
-                        start[n] = float(v)
-                        used.append(n)
-                    else:
-                        kept.append(n)
-                if used:
-                    source = "reduced analysis (" + ", ".join(used) + ")"
-                    if kept:
-                        source += "; preset for " + ", ".join(kept) + " (undetermined by it)"
+            names = [n for n in ("mu_max", "mu_min", "tau") if n in start and n in fitted.parameters]
+            # measured on the two-condition plan's Monte Carlo: the Eq. 9 fit over two rest
+            # times put μmin at 0.004-0.07 ± 0.2 in 4 of 20 repeats, and those fits ended
+            # far from the truth. The three values are fitted together (τ and μmax moved
+            # with that μmin), so one the fit cannot tell from zero discredits all three.
+            vague = [n for n in names if not (np.isfinite(fitted.parameters[n])
+                                              and np.isfinite(fitted.stderr.get(n, np.nan))
+                                              and abs(fitted.parameters[n]) > REDUCED_Z * fitted.stderr[n])]
+            if fitted.converged and names and not vague:
+                for n in names:
+                    start[n] = float(fitted.parameters[n])
+                    origin[n] = "reduced analysis"
+            elif fitted.converged and vague:
+                log.info("reduced-analysis start not used: %s undetermined", ", ".join(vague))
+                origin.update({n: f"preset ({', '.join(vague)} undetermined by the reduced analysis)"
+                               for n in names})
     except Exception as err:  # the start is a convenience, never a reason to fail
         log.info("reduced-analysis start unavailable: %s", err)
     for n, v in opts.start.items():
         if n in start:
             start[n] = float(v)
-            source = "given"
+            origin[n] = "given"
     if "mu_min" in start and "mu_max" in start and start["mu_min"] >= start["mu_max"]:
         start["mu_min"] = 0.9 * start["mu_max"]
-    return start, source
+        origin["mu_min"] = "0.9 mu_max (the start had mu_min >= mu_max)"
+    groups: dict[str, list] = {}
+    for n, o in origin.items():
+        groups.setdefault(o, []).append(n)
+    if len(groups) == 1:
+        return start, next(iter(groups))
+    return start, "; ".join(f"{o} for {', '.join(ns)}" for o, ns in groups.items())
 
 
 SUSPECT_REDCHI = 2.0  # a solution's reduced χ² above which the fit tries another start
@@ -549,15 +554,14 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         other = (start_given, "the start before staging", "unstaged")
     elif staged is not None and staged != start_given:
         other = (staged, "the staged start it rejected", "staged")
-    if other is not None and _suspect(prob, best):
-        w_other = prob.initial_w(other[0])
-        solve_from(w_other, f"the fit looks wrong ({_suspect(prob, best)}); again from {other[1]}")
-        kept = min(results, key=lambda r: r["f"])
-        start_source += (f" -> suspect, solved again from the {other[2]} start: "
-                         + ("kept" if kept is results[-1] else "worse, not kept"))
-        if kept is results[-1]:
-            start = other[0]  # the report's "init" is the start the kept solution came from
-        best = kept
+    why = _suspect(prob, best) if other is not None else ""
+    if why:
+        solve_from(prob.initial_w(other[0]), f"the fit looks wrong ({why}); again from {other[1]}")
+        better = results[-1]["f"] < best["f"]
+        start_source += f" -> suspect, solved again from the {other[2]} start: " + (
+            "kept" if better else "not better, not kept")
+        if better:
+            best, start = results[-1], other[0]  # the report's init: where the kept solve began
     if not np.isfinite(best["f"]):
         raise FitError("every solver start failed: " + "; ".join(r["status"] for r in results))
     # the mode sequence: move triggers the model places a step or two off, and leave
@@ -599,12 +603,12 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
 
             try:
                 fresh, _ = staged_start(prob, start_given, seed=opts.seed or 0)
-                other = prob.solve(prob.initial_w(fresh))
+                afresh = prob.solve(prob.initial_w(fresh))
             except Exception as err:  # the warm solution stands
                 log.info("fresh start after inserting slips failed: %s", err)
-                other = dict(f=np.inf, iterations=0, wall_s=0.0)
-            both_it, both_s = sol["iterations"] + other["iterations"], sol["wall_s"] + other["wall_s"]
-            sol = min((sol, other), key=lambda r: r["f"] if np.isfinite(r["f"]) else np.inf)
+                afresh = dict(f=np.inf, iterations=0, wall_s=0.0)
+            both_it, both_s = sol["iterations"] + afresh["iterations"], sol["wall_s"] + afresh["wall_s"]
+            sol = min((sol, afresh), key=lambda r: r["f"] if np.isfinite(r["f"]) else np.inf)
             sol["iterations"], sol["wall_s"] = both_it, both_s
         sol["iterations"] += best["iterations"]
         sol["wall_s"] += best["wall_s"]

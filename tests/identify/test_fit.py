@@ -241,9 +241,8 @@ def test_a_suspect_solution_is_solved_again_from_a_rejected_staged_start(small_t
     assert "solved again from the staged start: " in res.start_source
     assert res.multistart["starts"] == 2
     assert res["tau"].value == pytest.approx(truth["tau"], rel=0.25)
-    # the report's init is the start the kept solution came from
-    kept_staged = res.start_source.endswith("kept") and "not kept" not in res.start_source
-    assert (res["tau"].init == 8 * truth["tau"]) == kept_staged
+    # the report's init is where the kept solve began
+    assert (res["tau"].init == 8 * truth["tau"]) == res.start_source.endswith(": kept")
 
 
 def test_long_solves_report_their_iterations(small_traces, monkeypatch):
@@ -340,9 +339,10 @@ def test_what_makes_a_solution_suspect(small_fit):
     assert _suspect(prob, dict(f=np.inf, success=False)) == "no solution"
 
 
-def test_start_takes_only_what_the_reduced_analysis_determines(monkeypatch):
+def test_start_takes_the_reduced_analysis_only_where_it_determines_it(monkeypatch):
     """A reduced (Eq. 9) fit over two rest times can put μmin anywhere (measured 0.004 ±
-    0.24 on the two-condition plan); such a value must not start the full fit."""
+    0.24 on the two-condition plan), and τ and μmax move with it: such a fit must not
+    start the full one."""
     from types import SimpleNamespace
 
     import identify.reduced as reduced
@@ -355,16 +355,18 @@ def test_start_takes_only_what_the_reduced_analysis_determines(monkeypatch):
     runs = [SimpleNamespace(kind="events", events=SimpleNamespace(reduced=object())) for _ in range(8)]
     law, opts = get_law("exponential"), FitOptions()
     start, source = _start_values(runs, law, preset, opts)
-    assert start["mu_max"] == 0.83 and start["tau"] == 0.044
-    assert start["mu_min"] == preset["mu_min"] and start["A"] == preset["A"]
-    assert "preset for mu_min" in source
-    fitted.stderr["mu_min"] = 0.07  # 0.004 ± 0.07 still includes 0; 0.6 ± 0.07 does not
-    fitted.parameters["mu_min"] = 0.6
+    assert start == {n: preset[n] for n in opts.free}
+    assert "mu_min undetermined by the reduced analysis" in source
+    fitted.parameters["mu_min"], fitted.stderr["mu_min"] = 0.6, 0.07  # 0.6 ± 0.07 excludes 0
     start, source = _start_values(runs, law, preset, opts)
-    assert start["mu_min"] == 0.6 and source == "reduced analysis (mu_max, mu_min, tau)"
-    fitted.stderr = dict(mu_max=np.nan, mu_min=np.nan, tau=np.nan)  # nothing determined
-    start, source = _start_values(runs, law, preset, opts)
-    assert source == "preset" and start == {n: preset[n] for n in opts.free}
+    assert (start["mu_max"], start["mu_min"], start["tau"], start["A"]) == (0.83, 0.6, 0.044, preset["A"])
+    assert source == "reduced analysis for mu_max, mu_min, tau; preset for A"
+    start, source = _start_values(runs, law, preset, FitOptions(start={"A": 0.02}))
+    assert start["A"] == 0.02 and source == "reduced analysis for mu_max, mu_min, tau; given for A"
+    for bad in (dict(tau=np.nan), {}):  # a NaN or a missing standard error: not determined
+        fitted.stderr = dict(mu_max=0.0009, mu_min=0.07, **bad)
+        start, source = _start_values(runs, law, preset, opts)
+        assert start == {n: preset[n] for n in opts.free} and "tau undetermined" in source
 
 
 @pytest.mark.parametrize("kwargs, match", [
