@@ -427,33 +427,39 @@ def _recovery(coating, noise_nm):
                options=FitOptions(start=start, fixed={"v_stick": V_STICK}, staged_start=True)), truth
 
 
+OTS_BIASED = pytest.mark.xfail(reason=(
+    "measured 2026-11-22 (d5c61af): converges (87 iterations, reduced chi2 1.05) but biased: mu_max -1.7 %, "
+    "mu_min -11.5 %, tau -9.1 %, A +83 %, the truth outside the intervals (mu_min-A correlation > 0.99); two "
+    "of eight runs left out (slips too short to resolve); README 'Limits'"), strict=False)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("coating", [
-    "FOTAS",
-    pytest.param("OTS", marks=pytest.mark.xfail(
-        reason="measured: converges (9 iterations) but biased: mu_min -5.5 %, tau -4.1 %, A +39 %, "
-               "two of eight runs left out (slips too short to resolve); README 'Limits'", strict=False)),
-])
+@pytest.mark.parametrize("coating", ["FOTAS", pytest.param("OTS", marks=OTS_BIASED)])
 def test_recovery_90nm(coating):
+    """The issue's targets: the truth inside every 95 % interval, μmax and μmin within
+    2 %, τ within 10 %, A within 25 %, from a start 20 % off."""
     res, truth = _recovery(coating, 90.0)
-    assert res.solver["success"]
-    assert res["mu_max"].value == pytest.approx(truth["mu_max"], rel=0.02)
-    assert res["tau"].value == pytest.approx(truth["tau"], rel=0.10)
-    assert res["A"].value == pytest.approx(truth["A"], rel=0.25)
-    # measured on FOTAS: mu_min -2.7 % (issue target 2 %), see the README's limits
-    assert res["mu_min"].value == pytest.approx(truth["mu_min"], rel=0.04)
-
-
-@pytest.mark.slow
-@pytest.mark.xfail(reason="measured: mu_max's 95 % interval misses the truth (-0.45 %, 3 stderr) and "
-                          "mu_min is -2.7 % off: the trigger surrogate's bias; README 'Limits'",
-                   strict=False)
-def test_recovery_intervals_cover_truth():
-    res, truth = _recovery("FOTAS", 90.0)
     for name in ("mu_max", "mu_min", "tau", "A"):
         lo, hi = res[name].ci95
         assert lo <= truth[name] <= hi, name
+    assert res["mu_max"].value == pytest.approx(truth["mu_max"], rel=0.02)
     assert res["mu_min"].value == pytest.approx(truth["mu_min"], rel=0.02)
+    assert res["tau"].value == pytest.approx(truth["tau"], rel=0.10)
+    assert res["A"].value == pytest.approx(truth["A"], rel=0.25)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("coating", [
+    pytest.param("FOTAS", marks=pytest.mark.xfail(reason=(
+        "measured 2026-11-22 (d5c61af): Stalled after 101 iterations at a 0.23 nm violation of one slip's "
+        "length (FOTAS_20.3_30_100, step 37), whose arc has a kink at the solution (one-sided derivatives "
+        "0.98 and 1.33 in scaled mu_min; probably a slow slip grazing the stop speed); the estimates meet every target "
+        "(reduced chi2 0.995); README 'Limits'"), strict=False)),
+    "OTS",
+])
+def test_recovery_90nm_converges(coating):
+    res, _ = _recovery(coating, 90.0)
+    assert res.solver["success"], res.solver["status"]
 
 
 # ----------------------------------------------------------------------------- profiles, multistart
