@@ -216,10 +216,15 @@ def speed(n_runs_list, steps: int, coating: str) -> dict:
         t = res.timing
         row = dict(runs=n, slips=res.n_events, wall_s=wall, iterations=res.solver["iterations"],
                    arc_s=t["arc_s"], jac_s=t["jac_s"], rest_s=max(wall - t["arc_s"] - t["jac_s"], 0),
-                   status=res.solver["status"])
+                   status=res.solver["status"], start=res.start_source,
+                   # a slow fit that ends far from the truth is a start problem, not a speed one
+                   rel_error={n_: res[n_].value / truth[n_] - 1 for n_ in FREE},
+                   reduced_chi2=res.redchi)
         rows.append(row)
         print(f"  {n:4d} {row['slips']:6d} {wall:8.1f} {row['iterations']:4d} {row['arc_s']:8.1f} "
               f"{row['jac_s']:7.1f} {row['rest_s']:8.1f}  {row['status']}", flush=True)
+        print("        errors " + ", ".join(f"{k} {v:+.2%}" for k, v in row["rel_error"].items())
+              + f"; reduced chi2 {row['reduced_chi2']:.3g}; start: {row['start']}", flush=True)
     out = dict(coating=coating, steps=steps, rows=rows)
     if len(rows) >= 2:
         x = np.log([r["runs"] for r in rows])
