@@ -235,6 +235,11 @@ class Problem:
     serves the fit, the multistart and the profile likelihoods.
     """
 
+    # the solver's tolerances (module constants, above); a candidate refit of the
+    # diagnosis overrides them on its instance (identify.candidates)
+    stat_tol, feas_tol = STAT_TOL, FEAS_TOL
+    stall_tol, stall_feas = STALL_TOL, STALL_FEAS
+
     def __init__(self, runs: Sequence, model: Model, values: dict, opts):
         self.runs = list(runs)
         self.model, self.law, self.opts = model, model.law, opts
@@ -678,7 +683,7 @@ class Problem:
             # than 2e-4 (the parameters would move by ≪ 0.01 σ). The relative-step test
             # below can wait for ever when finite-difference arc Jacobians are noisy.
             feas0 = float(np.abs(g).max()) if g.size else 0.0
-            stat_tol, feas_tol = getattr(self, "stat_tol", STAT_TOL), getattr(self, "feas_tol", FEAS_TOL)
+            stat_tol, feas_tol = self.stat_tol, self.feas_tol
             if feas0 < feas_tol and -0.5 * float(grad @ d) < stat_tol:
                 status, success = "Solve_Succeeded", True
                 break
@@ -736,8 +741,7 @@ class Problem:
         feas = float(np.abs(g).max()) if g.size else 0.0
         log.debug("GN it %d: stalled at |g| %.2e, 1/2 chi2 %.3g from the model's solution%s",
                   it, feas, left, " (damped step)" if damped else "")
-        ok = (not damped and feas < getattr(self, "stall_feas", STALL_FEAS)
-              and left < getattr(self, "stall_tol", STALL_TOL))
+        ok = not damped and feas < self.stall_feas and left < self.stall_tol
         return (STALLED, True) if ok else ("Stalled", False)
 
     # ---------------------------------------------------------------- mode sequence

@@ -197,7 +197,8 @@ def test_a_staged_start_that_fits_worse_is_rejected(small_traces, monkeypatch):
     assert res["tau"].value == pytest.approx(truth["tau"], rel=0.25)
 
 
-def test_a_suspect_solution_is_solved_again_from_the_unstaged_start(small_traces, monkeypatch):
+def _suspect_once(monkeypatch):
+    """The fit's first solution is called suspect, every later one not."""
     import importlib
 
     fit_mod = importlib.import_module("identify.fit")  # (the package exports the function fit)
@@ -208,6 +209,10 @@ def test_a_suspect_solution_is_solved_again_from_the_unstaged_start(small_traces
         return "forced by the test" if len(calls) == 1 else ""
 
     monkeypatch.setattr(fit_mod, "_suspect", suspect_once)
+
+
+def test_a_suspect_solution_is_solved_again_from_the_unstaged_start(small_traces, monkeypatch):
+    _suspect_once(monkeypatch)
     truth = parameter_set("FOTAS")
     off = {"mu_max": truth["mu_max"] / 1.2, "mu_min": truth["mu_min"] * 1.2, "tau": truth["tau"] * 1.2,
            "A": truth["A"] * 1.2}  # 20 % off: the staged start improves on it
@@ -221,21 +226,12 @@ def test_a_suspect_solution_is_solved_again_from_the_unstaged_start(small_traces
 def test_a_suspect_solution_is_solved_again_from_a_rejected_staged_start(small_traces, monkeypatch):
     """The start's χ² does not say where a solve ends (the 5-run benchmark: staged start
     rejected, the other stalled): a suspect solution tries the start that was not taken."""
-    import importlib
-
     import identify.start as start_mod
 
-    fit_mod = importlib.import_module("identify.fit")
     truth = parameter_set("FOTAS")
     monkeypatch.setattr(start_mod, "staged_start",
                         lambda prob, start, **kw: (dict(start, tau=8 * truth["tau"], A=1e-10), {}))
-    calls = []
-
-    def suspect_once(prob, res):
-        calls.append(res["f"])
-        return "forced by the test" if len(calls) == 1 else ""
-
-    monkeypatch.setattr(fit_mod, "_suspect", suspect_once)
+    _suspect_once(monkeypatch)
     res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}))
     assert "staged start rejected" in res.start_source
     assert "solved again from the staged start: " in res.start_source
