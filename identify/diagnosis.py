@@ -169,7 +169,11 @@ class DiagnosisResult:
         if base and base.get("ok"):
             L.append(f"    gap (fitted runs)  = {base['gap']['gap_um'] * 1e3:.1f} nm before; noise floor "
                      f"{base['gap']['noise_um'] * 1e3:.1f} nm")
-            L.append(f"    gap (held out)     = {base['heldout'].get('gap_um', float('nan')) * 1e3:.1f} nm before")
+            ho = base["heldout"]
+            why = (f" (not computed: {ho['error']})" if ho.get("error") else
+                   f" ({ho['refitted_folds']} fold(s) refitted: the linear leave-out step did not hold)"
+                   if ho.get("refitted_folds") else "")
+            L.append(f"    gap (held out)     = {ho.get('gap_um', float('nan')) * 1e3:.1f} nm before{why}")
         L.append(f"    gap after          = {self.final['gap_um'] * 1e3:.1f} nm fitted, "
                  f"{self.final['heldout_gap_um'] * 1e3:.1f} nm held out ({self.options.folds} folds)")
         L.append(f"    wall time          = {self.timing['total_s']:.1f} s ({self.timing['refits']} refits, "
@@ -239,7 +243,7 @@ def _json_default(o):
 _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delta_bic", "confounded_with",
               "gap_before_um", "gap_after_um", "heldout_gap_before_um", "heldout_gap_after_um", "significant",
               "named", "note", "ok", "status", "iterations", "wall_s", "law", "r2_with_model",
-              "closed_fraction", "estimates", "rounds")
+              "closed_fraction", "estimates", "rounds", "heldout_refitted_folds", "heldout_error")
 
 
 def _cand_json(c: dict) -> dict:
@@ -483,6 +487,10 @@ def _score(results, base, opts, n_cand) -> list:
         c["gap_after_um"] = c["gap"]["gap_um"]
         c["heldout_gap_before_um"] = base["heldout"]["gap_um"]
         c["heldout_gap_after_um"] = c["heldout"]["gap_um"]
+        # folds the linear leave-out step did not hold for (refitted), and why a held-out
+        # gap is missing, if it is
+        c["heldout_refitted_folds"] = c["heldout"].get("refitted_folds")
+        c["heldout_error"] = c["heldout"].get("error")
         conf = c.get("confounding") or {}
         r2 = max((v.get("r2", 0.0) for v in conf.values()), default=0.0)
         if any(v.get("confounded") for v in conf.values()):

@@ -8,12 +8,21 @@ information). The held-out runs are then predicted with those parameters, their 
 nuisances (first plateau position, offset) re-estimated from their own frames — as a new
 run would be — by a second step with the shared parameters held. Both steps are sparse
 KKT solves with the Jacobian the fit already has, so every fold of every candidate costs
-milliseconds instead of a refit; :func:`exact_fold` does the refit, for checks.
+milliseconds instead of a refit.
+
+The linear steps are checked against the model itself at the point they reach (one
+evaluation per fold). Where they disagree by more than :data:`LINEAR_TOL` noise σ — a
+model far from the data, where leaving a run out moves the parameters a long way, or a
+step through a bound — that fold is refitted exactly instead (:func:`exact_fold`: the
+NLP without the fold solved from the full solution, then the fold's runs with the
+shared parameters held). Measured: with μmax held 25 % low on four FOTAS runs, the
+linear steps put the held-out gap at 0.31 µm, the refits at 0.064 µm (fitted runs:
+0.050 µm); a baseline 40 σ off in static friction had got 1e7 µm from the linear steps.
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -21,7 +30,12 @@ import scipy.sparse.linalg as spla
 
 from .features import Layout
 
-__all__ = ["folds_of", "heldout_residuals"]
+__all__ = ["HeldOut", "folds_of", "heldout_residuals", "exact_fold"]
+
+LINEAR_TOL = 0.5
+"""The linear prediction of a fold stands when, at the point it reaches, the model's
+residuals agree with it to this many noise σ (RMS over the fold's rows and over the
+kept rows) and its continuity constraints hold to this many σ of the runs' noise."""
 
 
 def folds_of(n_runs: int, folds: "str | int" = "loo", seed: int = 0) -> list:
@@ -54,12 +68,15 @@ def _kkt_solve(H, Jg, rhs_grad, g, free):
     return d
 
 
-def heldout_residuals(prob, w: np.ndarray, folds: Sequence, evaluated=None, hold: np.ndarray | None = None):
-    """Predicted residuals of every run when it is held out (linearised; see module).
+class HeldOut(NamedTuple):
+    residuals: np.ndarray  # each run's rows from the fit without its fold
+    shifts: list  # the scaled parameter shift per fold
+    refitted: list  # the folds the linear steps did not hold for, refitted exactly
 
-    Returns (r_heldout, theta_shift): the residual vector in which each run's rows come
-    from the fit without its fold, and the scaled parameter shift per fold.
-    """
+
+def heldout_residuals(prob, w: np.ndarray, folds: Sequence, evaluated=None) -> HeldOut:
+    """Predicted residuals of every run when it is held out (linearised where the model
+    confirms the linear steps, else refitted; see module)."""
     r, g, Jr, Jg = evaluated if evaluated is not None else prob.central_differences().evaluate(w, jac=True)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jr.data)) and np.all(np.isfinite(Jg.data))):
         raise ValueError("the residuals or their Jacobian are not finite at the solution")
@@ -72,11 +89,10 @@ def heldout_residuals(prob, w: np.ndarray, folds: Sequence, evaluated=None, hold
     grad = Jr.T @ r
     active = ((w <= lbx + 1e-12) & (grad > 0)) | ((w >= ubx - 1e-12) & (grad < 0))
     fixed = (lbx == ubx) | active
-    if hold is not None:
-        fixed = fixed | hold
     n_th = prob.n_theta
     out = np.full_like(r, np.nan)
     shifts = []
+    exact = []
     for fold in folds:
         fold = list(fold)
         in_rows = np.isin(lay.row_run, fold)
@@ -107,5 +123,70 @@ def heldout_residuals(prob, w: np.ndarray, folds: Sequence, evaluated=None, hold
         else:
             d2 = np.zeros(prob.n_w)
         pred = rf + Jf @ d2
-        out[in_rows] = pred[in_rows]
-    return out, shifts
+        if _linear_holds(prob, w + d + d2, r + Jr @ (d + d2), in_rows):
+            out[in_rows] = pred[in_rows]
+            continue
+        r_fold, dth_exact = exact_fold(prob, w, fold)
+        out[in_rows] = r_fold
+        shifts[-1] = dth_exact
+        exact.append(fold)
+    return HeldOut(out, shifts, exact)
+
+
+def _linear_holds(prob, w_new, r_lin, in_rows) -> bool:
+    """Whether the model at ``w_new`` gives the residuals the linear steps predicted."""
+    lbx, ubx = prob.bounds()
+    if np.any(w_new < lbx - 1e-9) or np.any(w_new > ubx + 1e-9):
+        return False
+    try:
+        r_new, g_new = prob.evaluate(w_new)
+    except Exception:  # an arc that cannot be integrated there
+        return False
+    if not (np.all(np.isfinite(r_new)) and np.all(np.isfinite(g_new))):
+        return False
+    rms = lambda a: float(np.sqrt(np.mean(a**2))) if a.size else 0.0  # noqa: E731
+    diff = r_new - r_lin
+    sigma_um = float(np.min([rd.sigma for rd in prob.runs])) * 1e6
+    return (rms(diff[in_rows]) <= LINEAR_TOL and rms(diff[~in_rows]) <= LINEAR_TOL
+            and (g_new.size == 0 or float(np.max(np.abs(g_new))) <= LINEAR_TOL * sigma_um))
+
+
+def _subproblem(prob, w: np.ndarray, runs: Sequence[int]):
+    """The NLP over ``runs`` (indices into ``prob.runs``, in order) and ``w`` restricted
+    to it: the variables are laid out block by block, each block in run order."""
+    from .nlp import Problem
+
+    lay = Layout.of(prob)
+    sub = Problem([prob.runs[i] for i in runs], prob.model, prob.values, prob.opts)
+    for tol in ("stat_tol", "feas_tol", "stall_tol", "stall_feas"):
+        setattr(sub, tol, getattr(prob, tol))
+    sub.ev_M = np.asarray(prob.ev_M)[np.isin(prob.ev_run, runs)]
+    sub.build()
+    w_sub = w[(lay.var_run == -1) | np.isin(lay.var_run, runs)]
+    if w_sub.size != sub.n_w:  # a layout this function does not know
+        raise RuntimeError(f"sub-problem layout mismatch: {w_sub.size} variables mapped, {sub.n_w} expected")
+    return sub, w_sub
+
+
+def exact_fold(prob, w: np.ndarray, fold: Sequence[int]):
+    """The fold held out by refitting: (the fold's residual rows, the scaled parameter
+    shift). The NLP without the fold is solved from ``w``; the fold's runs are then
+    fitted with the shared parameters held at that solution, their own variables free."""
+    fold = sorted(int(i) for i in fold)
+    kept = [i for i in range(len(prob.runs)) if i not in fold]
+    n_th = prob.n_theta
+    th = w[:n_th].copy()
+    if kept:
+        sub, w_sub = _subproblem(prob, w, kept)
+        sol = sub.solve(w_sub)
+        if np.all(np.isfinite(sol["w"])) and np.isfinite(sol["f"]):
+            th = sol["w"][:n_th]
+    held, w_h = _subproblem(prob, w, fold)
+    w_h[:n_th] = th
+    if held.E:
+        held.size_arcs(w_h)
+    sol = held.solve(w_h, fixed={i: float(th[i]) for i in range(n_th)})
+    r_h = held.residuals(sol["w"])
+    if r_h.size != int(np.isin(Layout.of(prob).row_run, fold).sum()):
+        raise RuntimeError("sub-problem residual layout mismatch")
+    return r_h, th - w[:n_th]
