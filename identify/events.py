@@ -35,7 +35,9 @@ segmentation
     block should only move forward) are kept and reported in ``warnings``; (4) each
     slip boundary moves to the best split between two frames that straddle a step
     (the block can only start moving at a step), unless a split inside a step period
-    fits better by more than 9σ̂² of RSS (a slip delayed by its creep nucleation).
+    fits better by more than 9σ̂² of RSS (a slip delayed by its creep nucleation); the
+    best other step-aligned split and its extra RSS are kept with the slip, for the fit
+    to try where the frames leave the step ambiguous.
     (5) a block that seems to move backward within its plateaus (a too small step in
     the metadata, or a drift of the elongation) cuts every plateau into pieces: when
     that speed is significant (:data:`BACKWARD_SIGMAS`) the segmentation is repeated on
@@ -471,6 +473,43 @@ def _snap_to_steps(b, steps, segs, sigma, frames_per_step):
     return out
 
 
+AMBIGUOUS_RSS = 9.0
+"""A slip boundary whose best other step-aligned split fits the frames within this much
+RSS (σ², a likelihood ratio of e^4.5) is ambiguous: noise on the frames next to a slip
+can make the split a step late. The fit then tries the alternative against the whole
+model (:func:`identify.fit.fit`): measured on an OTS run (k = 20.3 N/m, 30 µN, 30 Hz,
+90 nm), one slip detected a step late (margin 2.8 σ²) shifted μmin by −11 % and A by
++83 %, 9 standard errors, through the chain of slips after it."""
+
+
+def _trigger_alternatives(b, steps, segs, sigma, frames_per_step):
+    """Per boundary between consecutive segments: (the step of the best other split
+    that also falls between two steps, its extra RSS in σ²); (−1, inf) where there is
+    none (frames excluded inside the slip, or no other step boundary within reach)."""
+    w = max(2, round(2 * frames_per_step))
+    alt = np.full(max(len(segs) - 1, 0), -1, np.int64)
+    margin = np.full(max(len(segs) - 1, 0), np.inf)
+    for i in range(len(segs) - 1):
+        a, c = segs[i].frames, segs[i + 1].frames
+        if a[-1] + 1 != c[0]:
+            continue
+        f = np.concatenate([a, c])
+        k0 = a.size
+        lo, hi = max(1, k0 - w), min(f.size - 1, k0 + w)
+        if hi < lo or not (lo <= k0 <= hi):
+            continue
+        y = (b[f] - b[f].mean()) / sigma
+        rss = _split_rss(y)[lo - 1 : hi]
+        ks = np.arange(lo, hi + 1)
+        at_step = (steps[f[ks]] > steps[f[ks - 1]]) & (ks != k0)
+        if not at_step.any():
+            continue
+        j = int(np.argmin(np.where(at_step, rss, np.inf)))
+        alt[i] = int(steps[f[ks[j]]])
+        margin[i] = float(rss[j] - rss[k0 - lo])
+    return alt, margin
+
+
 def _inner_pairs(segs, n_frames: int, margin: int = 0) -> np.ndarray:
     """Mask of first differences (j, j+1) with both frames in the same segment and at
     least ``margin`` frames from its ends."""
@@ -556,6 +595,8 @@ _SLIP_KEYS = (
     "rest_time_s",
     "z",
     "frames_inside",
+    "alt_trigger_step",
+    "alt_margin",
 )
 
 
@@ -590,7 +631,9 @@ class RunEvents:
         the triggering step), ``rest_steps`` (trigger_step_i − trigger_step_{i−1};
         trigger_step_0 for the first), ``rest_time_s`` (rest_steps/fp), ``z`` (signed
         slip length / its standard error), ``frames_inside`` (excluded frames between
-        the plateaus).
+        the plateaus), ``alt_trigger_step`` and ``alt_margin`` (the best other
+        step-aligned split of the frames and how much worse it fits, σ² of RSS; −1 and
+        inf where there is none: below :data:`AMBIGUOUS_RSS` the fit tries it).
     regime : str
         ``stick-slip``; ``unresolved`` (no saw-tooth above the noise: slips too small,
         creep, or plateaus mostly shorter than 3 frames); ``no-slip`` (< 2 slips).
@@ -728,6 +771,8 @@ def _empty_slips() -> dict:
         rest_time_s=np.zeros(0),
         z=np.zeros(0),
         frames_inside=np.zeros(0, np.int64),
+        alt_trigger_step=np.zeros(0, np.int64),
+        alt_margin=np.zeros(0),
     )
 
 
@@ -866,6 +911,9 @@ def extract_events(trace: Trace, *, noise_m: float | None = None, min_z: float =
             z=length / se,
             frames_inside=inside,
         )
+        b_seg = b - trend * (t - t[0]) if trend else b  # what the plateaus were found on
+        slips["alt_trigger_step"], slips["alt_margin"] = _trigger_alternatives(b_seg, steps, segs, sigma,
+                                                                              frames_per_step)
         neg = np.flatnonzero(length < 0)
         if neg.size:
             warnings.append(

@@ -251,9 +251,55 @@ def test_long_solves_report_their_iterations(small_traces, monkeypatch):
     assert its and "χ²" in its[0] and "of at most 100" in its[0]
 
 
+def _late_trigger(ev, j, margin):
+    """``ev`` with slip j's first post-slip step given to the plateau before it (what
+    noise on those frames can make the best split), the true step named as the
+    alternative with ``margin``."""
+    import dataclasses
+
+    n = int(ev.slips["trigger_step"][j])
+    pof = ev.plateau_of_frame.copy()
+    pof[(ev.steps == n) & (pof == j + 1)] = j
+    slips = {k: np.array(v, copy=True) for k, v in ev.slips.items()}
+    slips["trigger_step"][j] = n + 1
+    slips["alt_trigger_step"][j] = n
+    slips["alt_margin"][j] = margin
+    return dataclasses.replace(ev, plateau_of_frame=pof, slips=slips), n
+
+
+@pytest.mark.parametrize("margin", [2.0, np.inf])
+def test_an_ambiguous_trigger_is_tried_at_its_other_step(small_traces, margin):
+    """A slip detected a step late: marked ambiguous, the fit tries the true step against
+    the whole model and keeps it (χ² falls); not marked, it is not tried there."""
+    from identify.events import extract_events
+
+    evs = [extract_events(t) for t in small_traces]
+    j = len(evs[0].slips["trigger_step"]) // 2
+    late, n = _late_trigger(evs[0], j, margin)
+    said = []
+    truth = parameter_set("FOTAS")
+    # two parameters from the truth keep it quick; the pass is the same for four
+    res = fit([late, evs[1]], progress=said.append, options=FitOptions(
+        fixed={"v_stick": V_STICK}, free=("mu_min", "A"), start={"mu_min": truth["mu_min"], "A": truth["A"]},
+        staged_start=False))
+    tried = [m for m in said if "tried at" in m]
+    steps = res.problem.runs[0].trigger_steps
+    if np.isfinite(margin):
+        assert tried and tried[0].endswith(", kept") and f"step {n + 1} tried at {n}" in tried[0]
+        assert steps[j] == n and res.solver["triggers_moved"] >= 1
+    else:
+        assert not any(f"step {n + 1} tried" in m for m in tried)
+
+
 def _off_solution(small_fit):
     """The fitted problem and its solution with one slip-length constraint violated by 1 nm."""
+    import identify.nlp as nlp
+
     prob, w = small_fit.problem, small_fit.w.copy()
+    # the solver's differences, as Problem.solve sets them (the fit leaves the problem on
+    # the covariance's central ones, with which this solve stalled at a 1.5e-6 violation
+    # on one machine and converged on another)
+    prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP)
     e = prob.E // 2
     w[prob.i_x + prob.ev_prev[e] + 1] += 1e-3  # the plateau after slip e, 1 nm up
     return prob, w, e
@@ -423,14 +469,8 @@ def _recovery(coating, noise_nm):
                options=FitOptions(start=start, fixed={"v_stick": V_STICK}, staged_start=True)), truth
 
 
-OTS_BIASED = pytest.mark.xfail(reason=(
-    "measured 2026-11-22 (d5c61af): converges (87 iterations, reduced chi2 1.05) but biased: mu_max -1.7 %, "
-    "mu_min -11.5 %, tau -9.1 %, A +83 %, the truth outside the intervals (mu_min-A correlation > 0.99); two "
-    "of eight runs left out (slips too short to resolve); README 'Limits'"), strict=False)
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("coating", ["FOTAS", pytest.param("OTS", marks=OTS_BIASED)])
+@pytest.mark.parametrize("coating", ["FOTAS", "OTS"])
 def test_recovery_90nm(coating):
     """The issue's targets: the truth inside every 95 % interval, μmax and μmin within
     2 %, τ within 10 %, A within 25 %, from a start 20 % off."""
@@ -447,10 +487,11 @@ def test_recovery_90nm(coating):
 @pytest.mark.slow
 @pytest.mark.parametrize("coating", [
     pytest.param("FOTAS", marks=pytest.mark.xfail(reason=(
-        "measured 2026-11-22 (d5c61af): Stalled after 101 iterations at a 0.23 nm violation of one slip's "
-        "length (FOTAS_20.3_30_100, step 37), whose arc has a kink within 1e-5 of the solution (derivatives 0.98 "
-        "and 1.33 in scaled mu_min either side; probably a slow slip grazing the stop speed); the estimates meet every target "
-        "(reduced chi2 0.995); README 'Limits'"), strict=False)),
+        "measured 2026-11-22: ends Line_Search_Failed after 95 iterations (Stalled after 101 before the "
+        "ambiguous-trigger pass) near a 0.23 nm violation of one slip's length (FOTAS_20.3_30_100, step 37), whose "
+        "arc has a kink within 1e-5 of the solution (derivatives 0.98 and 1.33 in scaled mu_min either side; "
+        "probably a slow slip grazing the stop speed); the estimates meet every target (reduced chi2 0.99); "
+        "README 'Limits'""), strict=False)),
     "OTS",
 ])
 def test_recovery_90nm_converges(coating):
