@@ -37,7 +37,7 @@ from scipy import stats
 from .candidates import STALLED, CandidateTask, run_candidate
 from .effects import EFFECTS, get_effect
 from .events import _jsonable  # NaN/inf -> null, numpy -> Python
-from .fit import FitOptions, fit
+from .fit import FitError, FitOptions, fit
 from .heldout import folds_of
 from .where import where
 
@@ -251,6 +251,36 @@ def _cand_json(c: dict) -> dict:
 
 
 # ----------------------------------------------------------------------------- driver
+# identify.fit's reason for a run without resolvable slips where the model makes them (a
+# model that steps in slips below the noise agrees with such a run: that is no mismatch)
+REGIME_MISMATCH = "no resolvable slips and the model predicts stick-slip"
+
+
+def _regime_mismatch(excluded, opts: "DiagnosisOptions", t0: float) -> "DiagnosisResult":
+    """No run has a resolvable slip where the model, at the start parameters, stick-slips
+    in every one (measured: logistic-law data, which never re-age after a slip): there is
+    nothing to fit, and so no baseline to refine — a gap between the model and every run,
+    which no candidate can be scored on. The verdict is ``unexplained``, with the regime
+    named as where the misfit lives."""
+    from .where import Misfit, misfit_sigma
+
+    n = len(excluded)
+    detail = (f"{n} of {n} runs show no resolvable slip, where the model at the coating's preset "
+              "stick-slips: " + "; ".join(f"{name}: {why}" for name, why in excluded))
+    where0 = [Misfit(feature="regime", misfit_sigma=misfit_sigma(0.0), p_value=0.0, statistic=float(n), detail=detail)]
+    nan = float("nan")
+    return DiagnosisResult(
+        verdict="unexplained", effects=[], where=where0, where_final=where0, candidates=[], rounds=[],
+        baseline=None, final=dict(law=None, free=[], values={}, gap_um=nan, heldout_gap_um=nan, noise_um=nan,
+                                  heldout_gap_ratio=nan),
+        confounded=[], options=opts, timing=dict(total_s=time.perf_counter() - t0, refits=0, baseline_fit_s=nan),
+        notes=["no baseline could be fitted: no run shows a resolvable slip where the model stick-slips in "
+               "every one, so no candidate could be scored and the data carry no slip to compare the friction "
+               "law with (record runs that stick-slip, or fit the creep levels from parameters under which "
+               "the model creeps)"],
+    )
+
+
 def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None = None,
              options: DiagnosisOptions | None = None, baseline=None, executor: cf.Executor | None = None,
              progress: Callable[[str], None] | None = None) -> DiagnosisResult:
@@ -274,7 +304,12 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
     t0 = time.perf_counter()
     if baseline is None:
         say("baseline fit")
-        baseline = fit(data, coating=coating, options=fopts, progress=say)
+        try:
+            baseline = fit(data, coating=coating, options=fopts, progress=say)
+        except FitError as err:
+            if not err.excluded or not all(REGIME_MISMATCH in why for _, why in err.excluded):
+                raise
+            return _regime_mismatch(err.excluded, opts, t0)
     prob, w = baseline.problem, baseline.w
     fopts = prob.opts
     runs = prob.runs

@@ -32,7 +32,13 @@ SIGMA_FLOOR = 1e-12 / math.sqrt(12)  # m: rounding of the trace format's 6 decim
 
 
 class FitError(ValueError):
-    """Nothing could be fitted (every run was left out, or the solver failed)."""
+    """Nothing could be fitted (every run was left out, or the solver failed).
+
+    ``excluded`` lists (run name, why) for runs that were left out."""
+
+    def __init__(self, message: str, excluded=()):
+        super().__init__(message)
+        self.excluded = list(excluded)
 
 
 @dataclass(frozen=True)
@@ -590,7 +596,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         run_data = kept
     if not run_data:
         raise FitError("no run could be used: " + "; ".join(f"{n}: {why}" for n, why in excluded) if excluded
-                       else "no run could be used")
+                       else "no run could be used", excluded)
     say(f"{len(run_data)} run(s) used, {len(excluded)} left out; building the NLP")
     prob = Problem(run_data, model, values, opts).build()
     prob.progress = say

@@ -44,6 +44,9 @@ def plot_residual_vs_position(result, ax=None):
     plt = _plt()
     if ax is None:
         _, ax = plt.subplots(figsize=(6.5, 3.6))
+    if result.baseline is None:
+        ax.text(0.5, 0.5, "no baseline could be fitted", ha="center", transform=ax.transAxes)
+        return ax
     panels = [("baseline", result.baseline.problem, result.baseline.w)]
     if result.effects and result.final_problem is not None:
         panels.append(("+ " + ", ".join(result.effects), result.final_problem, result.final_w))

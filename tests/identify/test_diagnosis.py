@@ -115,6 +115,32 @@ def test_diagnosis_of_model_made_data_is_adequate(small_fit, tmp_path):
     assert len(paths) == 6 and all(p.stat().st_size > 0 for p in paths)
 
 
+def test_runs_without_slips_where_the_model_stick_slips_are_unexplained(tmp_path):
+    """Nothing to fit (no run has a resolvable slip, the preset stick-slips in each): a
+    verdict that says so, not an error — measured on the logistic-law withheld set."""
+    traces = [identify.simulate("FOTAS", spring_constant_N_per_m=k, normal_load_uN=nb, step_frequency_Hz=fp,
+                                travel_um=5, params={"mu_max": 0.485}, stick_speed_m_per_s=1e-5)
+              .sample(noise_nm=90, seed=i, name=f"flat{i}") for i, (k, nb, fp) in enumerate([(2.13, 5, 100),
+                                                                                           (20.3, 30, 30)])]
+    res = diagnose(traces, coating="FOTAS", fit_options=OPTS, options=DiagnosisOptions(effects=("drift",)))
+    assert res.verdict == "unexplained" and res.effects == [] and res.baseline is None
+    assert [m.feature for m in res.where] == ["regime"] and "2 of 2 runs" in res.where[0].detail
+    assert "flat0" in res.where[0].detail and "no baseline could be fitted" in res.notes[0]
+    assert "regime" in res.report()
+    js = json.loads(res.save_json(tmp_path / "d.json").read_text())
+    assert js["verdict"] == "unexplained" and js["baseline"] is None and js["where"][0]["feature"] == "regime"
+    assert len(res.save_plots(tmp_path)) == 6
+
+
+def test_runs_the_model_also_cannot_resolve_are_still_an_error():
+    """Slips below the noise in data and model alike is no mismatch: nothing usable."""
+    from identify.fit import FitError
+
+    with pytest.raises(FitError, match="no run could be used"):
+        diagnose([DATA.parent / "OTS" / "OTS_k2.13_Nb5uN_fp100Hz.csv"], fit_options=OPTS,
+                 options=DiagnosisOptions(effects=("drift",)))
+
+
 def test_a_confounded_candidate_is_never_named(small_fit):
     """A load-scale error is absorbed exactly by μmax, μmin and A."""
     res = diagnose(None, baseline=small_fit, options=DiagnosisOptions(effects=("load_scale",)))
