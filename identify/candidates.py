@@ -174,6 +174,7 @@ def run_candidate(task: CandidateTask) -> dict:
                 ho = heldout_residuals(prob, w, task.folds, evaluated=ev)
                 heldout = gap(feature_values(prob, w, ho.residuals))
                 heldout["refitted_folds"] = len(ho.refitted)
+                heldout["unverified_folds"] = len(ho.unverified)
             except Exception as err:  # the fit stands; only its held-out check is missing
                 heldout = dict(gap_um=float("nan"), error=f"{type(err).__name__}: {err}")
         values = dict(task.values)

@@ -243,7 +243,8 @@ def _json_default(o):
 _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delta_bic", "confounded_with",
               "gap_before_um", "gap_after_um", "heldout_gap_before_um", "heldout_gap_after_um", "significant",
               "named", "note", "ok", "status", "iterations", "wall_s", "law", "r2_with_model",
-              "closed_fraction", "estimates", "rounds", "heldout_refitted_folds", "heldout_error")
+              "closed_fraction", "estimates", "rounds", "heldout_refitted_folds",
+              "heldout_unverified_folds", "heldout_error")
 
 
 def _cand_json(c: dict) -> dict:
@@ -525,6 +526,7 @@ def _score(results, base, opts, n_cand) -> list:
         # folds the linear leave-out step did not hold for (refitted), and why a held-out
         # gap is missing, if it is
         c["heldout_refitted_folds"] = c["heldout"].get("refitted_folds")
+        c["heldout_unverified_folds"] = c["heldout"].get("unverified_folds")
         c["heldout_error"] = c["heldout"].get("error")
         conf = c.get("confounding") or {}
         r2 = max((v.get("r2", 0.0) for v in conf.values()), default=0.0)
