@@ -507,8 +507,8 @@ def test_recovery_90nm(coating):
 @pytest.mark.slow
 @pytest.mark.parametrize("coating", [
     pytest.param("FOTAS", marks=pytest.mark.xfail(reason=(
-        "measured 2026-11-22: ends Line_Search_Failed after 95 iterations (Stalled after 101 before the "
-        "ambiguous-trigger pass) near a 0.23 nm violation of one slip's length (FOTAS_20.3_30_100, step 37), whose "
+        "measured 2026-11-22 (2cd7e8b): ends Line_Search_Failed after 175 iterations (Stalled after 101 before "
+        "the ambiguous-trigger pass) near a 0.23 nm violation of one slip's length (FOTAS_20.3_30_100, step 37), whose "
         "arc has a kink within 1e-5 of the solution (derivatives 0.98 and 1.33 in scaled mu_min either side; "
         "probably a slow slip grazing the stop speed); the estimates meet every target (reduced chi2 0.99); "
         "README 'Limits'"), strict=False)),
