@@ -163,18 +163,22 @@ def _schur_information(prob, w, meat: bool = True):
 
 # ----------------------------------------------------------------------------- criteria
 def _criterion(I_rel: np.ndarray, name: str) -> float:
-    """Larger is better for every criterion (A is negated)."""
-    if name == "D":
-        sign, logdet = np.linalg.slogdet(I_rel)
-        return float(logdet) if sign > 0 else -np.inf
-    if name == "A":
-        try:
-            return -float(np.trace(np.linalg.inv(I_rel)))
-        except np.linalg.LinAlgError:
-            return -np.inf
+    """Larger is better for every criterion (A is negated).
+
+    D and A need a positive definite information: a plan that leaves a direction
+    undetermined scores −inf. (Measured: a near-singular matrix with a rounding-size
+    negative eigenvalue gave −trace(inverse) = +1.5e16, and the A criterion chose that
+    plan, whose standard errors are NaN; slogdet's sign misses an even count of them.)"""
+    if name not in CRITERIA:
+        raise ValueError(f"criterion {name!r}: choose one of {', '.join(CRITERIA)}")
+    lam = np.linalg.eigvalsh(0.5 * (I_rel + I_rel.T))
     if name == "E":
-        return float(np.linalg.eigvalsh(I_rel)[0])
-    raise ValueError(f"criterion {name!r}: choose one of {', '.join(CRITERIA)}")
+        return float(lam[0])
+    if not (np.all(np.isfinite(lam)) and lam[0] > 1e-12 * max(lam[-1], 0.0)):
+        return -np.inf
+    if name == "D":
+        return float(np.sum(np.log(lam)))
+    return -float(np.sum(1.0 / lam))
 
 
 def _effective(B: np.ndarray, M: np.ndarray) -> np.ndarray:

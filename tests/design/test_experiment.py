@@ -248,3 +248,20 @@ def test_design_prediction_is_the_fits_covariance():
     np.testing.assert_allclose(pred / np.outer(sd, sd), C / np.outer(sd, sd), atol=1e-4)
     # and not the Fisher inverse: the run's slips share their phase error
     assert not np.allclose(np.linalg.inv(B), C, rtol=0.05)
+
+
+def test_criteria_refuse_an_information_that_is_not_positive_definite():
+    """Rounding can leave a singular information with a tiny negative eigenvalue (or two,
+    which slogdet's sign misses): D and A must not score it, E ranks it last."""
+    from design.experiment import _criterion
+
+    Q = np.linalg.qr(np.random.default_rng(0).normal(size=(4, 4)))[0]
+    good = Q @ np.diag([1.0, 2.0, 3.0, 4.0]) @ Q.T
+    one_neg = Q @ np.diag([-1e-17, 2.0, 3.0, 4.0]) @ Q.T
+    two_neg = Q @ np.diag([-1e-17, -1e-17, 3.0, 4.0]) @ Q.T
+    for crit in ("D", "A"):
+        assert np.isfinite(_criterion(good, crit))
+        assert _criterion(one_neg, crit) == -np.inf and _criterion(two_neg, crit) == -np.inf
+    assert _criterion(good, "A") == pytest.approx(-(1 + 1 / 2 + 1 / 3 + 1 / 4))
+    assert _criterion(good, "D") == pytest.approx(np.log(24.0))
+    assert _criterion(one_neg, "E") < _criterion(good, "E")
