@@ -438,6 +438,24 @@ def _split_rss(y: np.ndarray) -> np.ndarray:
     return left + right
 
 
+def _split_window(b, steps, a, c, sigma, frames_per_step):
+    """The splits of two neighbouring segments' frames within two steps of their
+    boundary: (frames, current split k0, splits ks, their RSS in σ², whether each falls
+    between two steps); None when frames were excluded between them (a slip with
+    inside frames) or there is no split to consider."""
+    if a[-1] + 1 != c[0]:
+        return None
+    w = max(2, round(2 * frames_per_step))
+    f = np.concatenate([a, c])
+    k0 = a.size
+    lo, hi = max(1, k0 - w), min(f.size - 1, k0 + w)
+    if hi < lo:
+        return None
+    y = (b[f] - b[f].mean()) / sigma
+    ks = np.arange(lo, hi + 1)
+    return f, k0, ks, _split_rss(y)[lo - 1 : hi], steps[f[ks]] > steps[f[ks - 1]]
+
+
 def _snap_to_steps(b, steps, segs, sigma, frames_per_step):
     """Move each slip boundary to the best split between two frames that straddle a
     step, unless the data prefer a split inside a step period by more than 9σ² of RSS
@@ -446,21 +464,12 @@ def _snap_to_steps(b, steps, segs, sigma, frames_per_step):
     The block can only start moving at a step, so a boundary between two frames of the
     same step period is, for a fast slip, a noisy frame assigned to the wrong plateau.
     """
-    w = max(2, round(2 * frames_per_step))
     out = list(segs)
     for i in range(len(out) - 1):
-        a, c = out[i].frames, out[i + 1].frames
-        if a[-1] + 1 != c[0]:
-            continue  # frames excluded between: a slip with inside frames
-        f = np.concatenate([a, c])
-        k0 = a.size
-        lo, hi = max(1, k0 - w), min(f.size - 1, k0 + w)
-        if hi < lo:
+        win = _split_window(b, steps, out[i].frames, out[i + 1].frames, sigma, frames_per_step)
+        if win is None:
             continue
-        y = (b[f] - b[f].mean()) / sigma
-        rss = _split_rss(y)[lo - 1 : hi]  # splits k = lo..hi
-        ks = np.arange(lo, hi + 1)
-        at_step = steps[f[ks]] > steps[f[ks - 1]]
+        f, k0, ks, rss, at_step = win
         if not at_step.any():
             continue
         k_free = ks[int(np.argmin(rss))]
@@ -478,7 +487,7 @@ AMBIGUOUS_RSS = 9.0
 RSS (σ², a likelihood ratio of e^4.5) is ambiguous: noise on the frames next to a slip
 can make the split a step late. The fit then tries the alternative against the whole
 model (:func:`identify.fit.fit`): measured on an OTS run (k = 20.3 N/m, 30 µN, 30 Hz,
-90 nm), one slip detected a step late (margin 2.8 σ²) shifted μmin by −11 % and A by
+90 nm), one slip detected a step late (margin 1.6 σ²) shifted μmin by −11 % and A by
 +83 %, 9 standard errors, through the chain of slips after it."""
 
 
@@ -486,27 +495,19 @@ def _trigger_alternatives(b, steps, segs, sigma, frames_per_step):
     """Per boundary between consecutive segments: (the step of the best other split
     that also falls between two steps, its extra RSS in σ²); (−1, inf) where there is
     none (frames excluded inside the slip, or no other step boundary within reach)."""
-    w = max(2, round(2 * frames_per_step))
     alt = np.full(max(len(segs) - 1, 0), -1, np.int64)
     margin = np.full(max(len(segs) - 1, 0), np.inf)
     for i in range(len(segs) - 1):
-        a, c = segs[i].frames, segs[i + 1].frames
-        if a[-1] + 1 != c[0]:
+        win = _split_window(b, steps, segs[i].frames, segs[i + 1].frames, sigma, frames_per_step)
+        if win is None:
             continue
-        f = np.concatenate([a, c])
-        k0 = a.size
-        lo, hi = max(1, k0 - w), min(f.size - 1, k0 + w)
-        if hi < lo or not (lo <= k0 <= hi):
+        f, k0, ks, rss, at_step = win
+        other = at_step & (ks != k0)
+        if not other.any():
             continue
-        y = (b[f] - b[f].mean()) / sigma
-        rss = _split_rss(y)[lo - 1 : hi]
-        ks = np.arange(lo, hi + 1)
-        at_step = (steps[f[ks]] > steps[f[ks - 1]]) & (ks != k0)
-        if not at_step.any():
-            continue
-        j = int(np.argmin(np.where(at_step, rss, np.inf)))
+        j = int(np.argmin(np.where(other, rss, np.inf)))
         alt[i] = int(steps[f[ks[j]]])
-        margin[i] = float(rss[j] - rss[k0 - lo])
+        margin[i] = float(rss[j] - rss[k0 - ks[0]])
     return alt, margin
 
 
