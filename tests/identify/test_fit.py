@@ -281,6 +281,27 @@ def test_other_step_puts_moved_neighbours_back():
     assert _other_step(np.array([10, 20, 30, 40, 50]), detected, 2, 20) is None  # taken
 
 
+def test_trigger_misfit_reads_the_slip_and_the_next_two():
+    """The gate of the ambiguous-trigger pass: the largest |trigger residual| of the
+    slip nearest the step and the two after it, in that run only (a first slip has none)."""
+    from types import SimpleNamespace
+
+    from identify.fit import _trigger_misfit
+
+    # run 0: events 0-4 at steps 10-50; run 1: events 5-6; trigger rows from 3, one per
+    # event with a predecessor (ev_next), in that order
+    prob = SimpleNamespace(ev_run=np.array([0, 0, 0, 0, 0, 1, 1]),
+                           ev_step=np.array([10, 20, 30, 40, 50, 10, 20.0]),
+                           ev_next=np.array([1, 2, 3, 4, 6]), residual_groups=lambda: {"triggers": (3, 8)})
+    r = np.zeros(8)
+    r[3 + 2] = -4.0  # event 3's trigger
+    assert _trigger_misfit(prob, r, 0, 20) == 4.0  # events 1, 2, 3
+    assert _trigger_misfit(prob, r, 0, 41) == 4.0  # nearest event 3: events 3, 4
+    assert _trigger_misfit(prob, r, 0, 10) == 0.0  # events 0 (no row), 1, 2
+    assert _trigger_misfit(prob, r, 0, 50) == 0.0
+    assert _trigger_misfit(prob, r, 1, 20) == 0.0  # run 1's own rows only
+
+
 @pytest.mark.parametrize("margin", [2.0, np.inf])
 def test_an_ambiguous_trigger_is_tried_at_its_other_step(small_traces, margin, monkeypatch):
     """A slip detected a step late: marked ambiguous, the fit tries the true step against
