@@ -217,6 +217,10 @@ def _confounding(prob, w, ev, extra: Sequence[str]) -> dict:
         I = prob.information(w, evaluated=ev)
     except Exception as err:
         return {n: dict(r2=float("nan"), partners=[], note=str(err)) for n in extra}
+    if not np.all(np.isfinite(I)):
+        # (LAPACK would print "DLASCL parameter number 4 had an illegal value" and return NaN)
+        return {n: dict(r2=float("nan"), partners=[], note="the information matrix is not finite at this solution")
+                for n in extra}
     out = {}
     for n in extra:
         if n not in names:

@@ -102,9 +102,9 @@ def _cluster_trend(y, x, cluster):
 def position_ripple(x_m, y, w, run, wavelengths_m):
     """Weighted least-squares ripple a·sin(2πx/λ) + b·cos(2πx/λ) common to all runs (per-run
     means removed) at each λ: (Δχ², amplitude, phase) arrays."""
-    x_m = np.asarray(x_m, float)
-    y = np.asarray(y, float)
-    w = np.asarray(w, float)
+    x_m, y, w, run = (np.asarray(a) for a in (x_m, y, w, run))
+    ok = np.isfinite(x_m) & np.isfinite(y) & np.isfinite(w)  # (NaN rows: a model not evaluable there)
+    x_m, y, w, run = x_m[ok].astype(float), y[ok].astype(float), w[ok].astype(float), run[ok]
     runs = np.unique(run)
     D = np.stack([(run == r).astype(float) for r in runs], axis=1)
     sw = np.sqrt(w)
@@ -259,7 +259,9 @@ def _run_means(y, w, run):
 
 def _condition_trend(y, se, X, feature, what):
     """Weighted regression of per-run misfits on run conditions (columns of X that vary)."""
-    keep = [j for j in range(X.shape[1]) if np.ptp(X[:, j]) > 1e-9]
+    ok = np.isfinite(y) & np.isfinite(se) & (se > 0) & np.all(np.isfinite(X), axis=1)
+    y, se, X = np.asarray(y)[ok], np.asarray(se)[ok], np.asarray(X)[ok]
+    keep = [j for j in range(X.shape[1]) if np.ptp(X[:, j]) > 1e-9] if len(y) else []
     names = np.array(["ln Nb", "ln k", "ln fp"])[keep]
     n = len(y)
     A = np.column_stack([np.ones(n)] + [X[:, j] for j in keep])

@@ -38,6 +38,39 @@ def test_misfit_sigma_scale():
     assert misfit_sigma(0.0) == 40.0
 
 
+def test_misfit_tests_skip_rows_the_model_could_not_evaluate():
+    """A NaN row (a refit whose model is not finite there) is left out of the least
+    squares instead of reaching LAPACK ("DLASCL parameter number 4 had an illegal value")."""
+    from identify.where import _condition_trend, position_ripple
+
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0, 30e-6, 40)
+    run = np.repeat(np.arange(4), 10)
+    y = 0.01 * np.sin(2 * np.pi * x / 5e-6) + rng.normal(0, 0.003, 40)
+    wts = np.full(40, 1e5)
+    lams = np.array([3e-6, 5e-6, 8e-6])
+    clean = position_ripple(x[1:], y[1:], wts[1:], run[1:], lams)
+    y_nan = y.copy()
+    y_nan[0] = np.nan
+    for a, b in zip(position_ripple(x, y_nan, wts, run, lams), clean):
+        np.testing.assert_allclose(a, b)
+    X = np.log([[5, 2.13, 100], [10, 2.13, 30], [30, 20.3, 100], [60, 20.3, 30], [20, 2.13, 300], [30, 20.3, 10]])
+    m = np.array([0.01, 0.02, -0.01, 0.0, 0.015, np.nan])
+    se = np.full(6, 0.005)
+    assert _condition_trend(m, se, X, "f", "w") == _condition_trend(m[:5], se[:5], X[:5], "f", "w")
+
+
+def test_confounding_of_a_non_finite_information_says_so():
+    from types import SimpleNamespace
+
+    from identify.candidates import _confounding
+
+    prob = SimpleNamespace(theta=SimpleNamespace(names=["mu_max", "A", "dc"]),
+                           information=lambda w, evaluated=None: np.full((3, 3), np.nan))
+    out = _confounding(prob, None, None, ["dc"])
+    assert np.isnan(out["dc"]["r2"]) and "not finite" in out["dc"]["note"]
+
+
 def test_features_of_a_good_fit_sit_at_the_noise(small_fit):
     prob, w = small_fit.problem, small_fit.w
     g = gap(feature_values(prob, w, prob.residuals(w)))
