@@ -499,7 +499,9 @@ def _trigger_misfit(prob, r: np.ndarray, i: int, n: int, reach: int = GATE_REACH
     k = int(np.argmin(np.abs(prob.ev_step[evs] - n)))
     t0 = prob.residual_groups()["triggers"][0]
     row = {int(e): t0 + q for q, e in enumerate(prob.ev_next)}
-    return max((abs(float(r[row[int(e)]])) for e in evs[k:k + reach + 1] if int(e) in row), default=0.0)
+    vals = np.array([r[row[int(e)]] for e in evs[k:k + reach + 1] if int(e) in row], float)
+    # a trigger the model cannot evaluate is as misfit as it gets
+    return float(np.max(np.where(np.isfinite(vals), np.abs(vals), np.inf))) if vals.size else 0.0
 
 
 def _ambiguous_triggers(prob, best, model, values, opts, say):
@@ -533,20 +535,21 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
     if not cands:
         return prob, best, 0
     cands = sorted(cands)
-    def excess(p, w):  # χ² above its expectation
-        return float(np.sum(p.residuals(w) ** 2)) + p.chi2_constant() - p.n_observations()
+    def excess(p, r):  # χ² above its expectation
+        return float(np.sum(r ** 2)) + p.chi2_constant() - p.n_observations()
 
-    now = excess(prob, best["w"])
     r_now = prob.residuals(best["w"])
+    now = excess(prob, r_now)
     short = replace(opts, max_iter=TRIAL_ITER)
     base_its, base_wall = best["iterations"], best["wall_s"]
-    moved, tried, its, wall = 0, 0, 0, 0.0
+    moved, tried, fit_there, its, wall = 0, 0, 0, 0, 0.0
     say(f"{len(cands)} ambiguous slip trigger(s): trying the other step of those whose triggers misfit "
         f"(|residual| > {TRIGGER_GATE:g} at the slip or the next {GATE_REACH})")
     for _, i, j, alt in cands:
         n = int(prob.runs[i].events.slips["trigger_step"][j])
         misfit = _trigger_misfit(prob, r_now, i, n)
         if misfit <= TRIGGER_GATE:
+            fit_there += 1
             log.info("ambiguous trigger (run %d, step %d) not tried: its triggers fit (|r| <= %.2f)", i, n, misfit)
             continue
         steps = np.asarray(prob.runs[i].trigger_steps, int)
@@ -560,7 +563,7 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
         try:
             trial, w0 = _with_triggers(prob, best["w"], {i: new_steps}, model, values, short, say)
             sol = trial.solve(w0)
-            f = excess(trial, sol["w"]) if np.isfinite(sol["f"]) else np.inf
+            f = excess(trial, trial.residuals(sol["w"])) if np.isfinite(sol["f"]) else np.inf
         except Exception as err:  # a trial that cannot be evaluated is not taken
             log.info("trigger trial (run %d, step %d -> %d) failed: %s", i, n, alt, err)
             continue
@@ -583,7 +586,10 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
                 best = full
         except Exception as err:  # the trial's solution stands
             log.info("solve after a kept trigger move failed: %s", err)
-        now, r_now = excess(prob, best["w"]), prob.residuals(best["w"])
+        r_now = prob.residuals(best["w"])
+        now = excess(prob, r_now)
+    if fit_there:
+        say(f"  {fit_there} other ambiguous trigger(s) not tried: the model's triggers fit there")
     best["iterations"], best["wall_s"] = base_its + its, base_wall + wall
     return prob, best, moved
 

@@ -105,6 +105,9 @@ def position_ripple(x_m, y, w, run, wavelengths_m):
     x_m, y, w, run = (np.asarray(a) for a in (x_m, y, w, run))
     ok = np.isfinite(x_m) & np.isfinite(y) & np.isfinite(w)  # (NaN rows: a model not evaluable there)
     x_m, y, w, run = x_m[ok].astype(float), y[ok].astype(float), w[ok].astype(float), run[ok]
+    if not len(y):
+        nan = np.full(len(wavelengths_m), np.nan)
+        return nan, nan, nan
     runs = np.unique(run)
     D = np.stack([(run == r).astype(float) for r in runs], axis=1)
     sw = np.sqrt(w)
@@ -211,13 +214,16 @@ def where(prob, w: np.ndarray, r: np.ndarray | None = None) -> list:
         k = np.array([runs[i].k for i in st.run])
         dmu = -zt * k * dx / (math.sqrt(12) * N)  # capacity the model misses, per unit load
         wt = (math.sqrt(12) * N / (k * dx)) ** 2
+        # slips the model could not evaluate (NaN) are left out of the ripple and its scale
+        ok = np.isfinite(x_prev) & np.isfinite(dmu) & np.isfinite(wt)
+        x_prev, dmu, wt, rip_run = x_prev[ok], dmu[ok], wt[ok], st.run[ok]
         span = float(np.ptp(x_prev)) if x_prev.size else 0.0
         if x_prev.size > 8 and span > 0:
             lo = 1e-6  # the topography candidate's shortest wavelength (identify.effects)
             lams = np.geomspace(lo, max(span / 2, 2 * lo), 240)
-            d2, amp, ph = position_ripple(x_prev, dmu, wt, st.run, lams)
+            d2, amp, ph = position_ripple(x_prev, dmu, wt, rip_run, lams)
             # clusters (phase-locked slips) inflate the weights: scale by the residual dispersion
-            disp = max(float(np.sum(wt * (dmu - _run_means(dmu, wt, st.run)) ** 2)) / max(len(dmu) - len(np.unique(st.run)), 1), 1.0)
+            disp = max(float(np.sum(wt * (dmu - _run_means(dmu, wt, rip_run)) ** 2)) / max(len(dmu) - len(np.unique(rip_run)), 1), 1.0)
             i = int(np.argmax(d2))
             n_ind = max(int(span / lo), 1)
             q = d2[i] / disp

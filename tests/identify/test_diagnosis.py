@@ -54,10 +54,24 @@ def test_misfit_tests_skip_rows_the_model_could_not_evaluate():
     y_nan[0] = np.nan
     for a, b in zip(position_ripple(x, y_nan, wts, run, lams), clean):
         np.testing.assert_allclose(a, b)
-    X = np.log([[5, 2.13, 100], [10, 2.13, 30], [30, 20.3, 100], [60, 20.3, 30], [20, 2.13, 300], [30, 20.3, 10]])
-    m = np.array([0.01, 0.02, -0.01, 0.0, 0.015, np.nan])
-    se = np.full(6, 0.005)
-    assert _condition_trend(m, se, X, "f", "w") == _condition_trend(m[:5], se[:5], X[:5], "f", "w")
+    X = np.log([[5, 2.13, 100], [10, 2.13, 30], [30, 20.3, 100], [60, 20.3, 30], [20, 2.13, 300],
+                [30, 20.3, 10], [5, 2.13, 30], [10, 20.3, 100], [30, 2.13, 10]])
+    m = np.array([0.01, 0.02, -0.01, 0.0, 0.015, 0.03, 0.012, -0.004, np.nan])
+    se = np.full(9, 0.005)
+    trend = _condition_trend(m, se, X, "f", "w")
+    assert "depends on the run conditions" in trend.detail  # the regression ran
+    assert trend == _condition_trend(m[:-1], se[:-1], X[:-1], "f", "w")
+    nan = position_ripple(x, np.full(40, np.nan), wts, run, lams)
+    assert all(np.isnan(a).all() and a.shape == lams.shape for a in nan)
+
+
+def test_where_leaves_out_a_slip_the_model_could_not_evaluate(small_fit):
+    prob, w = small_fit.problem, small_fit.w
+    r = prob.residuals(w).copy()
+    t0 = prob.residual_groups()["triggers"][0]
+    r[t0 + 3] = np.nan
+    ripple = {m.feature: m for m in where(prob, w, r)}["position"]
+    assert np.isfinite(ripple.statistic) and np.isfinite(ripple.p_value)
 
 
 def test_confounding_of_a_non_finite_information_says_so():
