@@ -2,7 +2,7 @@
 they print what they measure.
 
     python tests/bench/bench_fit.py calibration --repeats 50 [--workers 2] [--jitter-load 0.05]
-        [--record cal.jsonl]
+        [--record cal.jsonl] [--seeds LO-HI]
     python tests/bench/bench_fit.py speed [--runs 2,5,10] [--steps 2000]
 
 calibration: each repeat simulates the design (the same noiseless runs every time), draws new 90 nm
@@ -131,7 +131,7 @@ def _recorded(record, context) -> dict:
 
 
 def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitter: float = 0.0,
-                record: str | None = None) -> dict:
+                record: str | None = None, seeds: range | None = None) -> dict:
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     truth = _truth(coating)
@@ -141,7 +141,10 @@ def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitt
     rows = [done[s] for s in range(repeats) if s in done]
     if rows:
         print(f"  {len(rows)} repeat(s) taken from {record}", file=sys.stderr)
-    jobs = [(coating, travel_um, s, jitter) for s in range(repeats) if s not in done]
+    todo = [s for s in range(repeats) if s not in done and (seeds is None or s in seeds)]
+    if seeds is not None:  # a share of the repeats, e.g. on another machine: its repeats in reverse
+        todo = todo[::-1]  # (so a process doing all of them in order meets it instead of doubling it)
+    jobs = [(coating, travel_um, s, jitter) for s in todo]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers) as ex:
         futures = {ex.submit(_one_repeat, job): job[2] for job in jobs}
@@ -249,6 +252,8 @@ def main(argv=None) -> int:
     c.add_argument("--jitter-load", type=float, default=0.0, metavar="J",
                    help="scale each run's load by a seeded factor in [1-J, 1+J] per repeat")
     c.add_argument("--record", metavar="FILE", help="append each repeat as it finishes; resume from FILE")
+    c.add_argument("--seeds", metavar="LO-HI", help="fit only these repeats (inclusive), highest first: "
+                   "a second process or machine sharing the record file")
     s = sub.add_parser("speed")
     s.add_argument("--runs", default="2,5,10")
     s.add_argument("--steps", type=int, default=2000)
@@ -259,7 +264,14 @@ def main(argv=None) -> int:
     if a.what == "calibration":
         if not 0 <= a.jitter_load < 1:
             ap.error(f"--jitter-load {a.jitter_load}: must be in [0, 1)")
-        out = calibration(a.repeats, a.coating, a.travel_um, a.workers, a.jitter_load, a.record)
+        seeds = None
+        if a.seeds:
+            try:
+                lo, hi = (int(x) for x in a.seeds.split("-"))
+            except ValueError:
+                ap.error(f"--seeds {a.seeds}: expected LO-HI, e.g. 25-49")
+            seeds = range(lo, hi + 1)
+        out = calibration(a.repeats, a.coating, a.travel_um, a.workers, a.jitter_load, a.record, seeds)
     else:
         out = speed([int(x) for x in a.runs.split(",")], a.steps, a.coating)
     if a.json:
