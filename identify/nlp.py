@@ -685,7 +685,20 @@ class Problem:
             feas0 = float(np.abs(g).max()) if g.size else 0.0
             stat_tol, feas_tol = self.stat_tol, self.feas_tol
             if feas0 < feas_tol and -0.5 * float(grad @ d) < stat_tol:
-                status, success = "Solve_Succeeded", True
+                if lm > 0:
+                    # a damped step's prediction is short along the flat directions: the
+                    # damping grew because steps failed, so the solve has stopped gaining,
+                    # not converged; judged as a stall on the undamped step
+                    K0 = sp.bmat([[(Jr.T @ Jr).tocsc()[free][:, free], Jg[:, free].T], [Jg[:, free], None]],
+                                 format="csc")
+                    try:
+                        d0 = np.zeros(self.n_w)
+                        d0[free] = spla.splu(K0).solve(np.r_[-grad[free], -g])[: len(free)]
+                        status, success = self._stalled(it, r0, Jr, d0, g, damped=False)
+                    except RuntimeError:
+                        status, success = "Stalled", False
+                else:
+                    status, success = "Solve_Succeeded", True
                 break
             with np.errstate(divide="ignore", invalid="ignore"):
                 a_max = float(min(1.0, np.min(np.where(d < 0, (lbx - w) / d, np.inf)),
@@ -694,7 +707,11 @@ class Problem:
             phi0 = 0.5 * r @ r + nu * np.abs(g).sum()
             dphi = grad @ d - nu * np.abs(g).sum()
             a, accepted = a_max, False
-            while a > 1e-10:
+            # backtracking stops where the step could gain less than stat_tol: steps that
+            # short are the arcs' integration noise, not progress (measured on a stalled
+            # 2-run fit: 21 of 38 accepted steps had α < 1e-6, dθ ~1e-9, and with the
+            # rejected ones took 97 % of the line-search evaluations)
+            while a > 1e-10 and (dphi >= 0 or -a * dphi >= stat_tol):
                 r1, g1 = self.evaluate(w + a * d)
                 phi1 = 0.5 * r1 @ r1 + nu * np.abs(g1).sum()
                 if np.isfinite(phi1) and phi1 <= phi0 + 1e-4 * a * min(dphi, 0.0):

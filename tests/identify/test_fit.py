@@ -348,12 +348,16 @@ def _off_solution(small_fit):
 
 def test_a_solve_whose_arc_jacobian_is_wrong_stops_as_stalled(small_fit, monkeypatch):
     """Measured: one arc's finite-difference row with the wrong sign held a solve at α ~1e-4
-    for its 100 iterations; it now stops after STALL_ITERS idle iterations."""
+    for its 100 iterations. Since the line search stops where a step could gain less than
+    stat_tol, such steps are rejected and the damping ladder (1e-3 … 1e8) ends the solve;
+    before, the accepted idle steps ended it as stalled."""
     import identify.nlp as nlp
 
     prob, w, e = _off_solution(small_fit)
     exact = prob.solve_gn(w)
-    assert exact["success"] and exact["iterations"] <= 5
+    # (measured 9 iterations: steps within the merit's noise are rejected, and the
+    # damping they raise decays again; 5 before the line-search floor)
+    assert exact["success"] and exact["iterations"] <= 10
     true_evaluate = prob.evaluate
 
     def wrong_row(w, jac=False):
@@ -367,8 +371,8 @@ def test_a_solve_whose_arc_jacobian_is_wrong_stops_as_stalled(small_fit, monkeyp
     monkeypatch.setattr(prob, "evaluate", wrong_row)
     res = prob.solve_gn(w)
     # stopped early, and not called converged: the 1 nm violation is still there
-    assert res["status"] == "Stalled" and not res["success"], res["status"]
-    assert res["iterations"] < 12  # the damping alone would fail the line search after 12
+    assert res["status"] in ("Stalled", "Line_Search_Failed") and not res["success"], res["status"]
+    assert res["iterations"] <= 16  # the damping ladder: 12 rejections from lm = 0
     assert np.abs(true_evaluate(res["w"])[1]).max() > nlp.STALL_FEAS
 
 
