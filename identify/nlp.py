@@ -627,11 +627,14 @@ class Problem:
 
         Each iteration solves the KKT system of the linearised problem
         min ½‖r + Jᵣd‖² s.t. g + J_g d = 0 (sparse LU), parameters at an active bound
-        held there, then backtracks on the ℓ1 merit ½‖r‖² + ν‖g‖₁. A Levenberg–Marquardt
-        term on the parameter block is switched on only when the line search fails (flat
-        directions) and decays after good steps. Converged when the relative parameter
-        step, the constraint violation and the merit change are all below ``tol``, or
-        when the full step would lower χ² by less than 2·``STAT_TOL`` at a feasible point.
+        held there, then backtracks on the ℓ1 merit ½‖r‖² + ν‖g‖₁, no further than where
+        the step could gain less than ``STAT_TOL`` (below, the merit's change is the arcs'
+        integration noise). A Levenberg–Marquardt term on the parameter block is switched
+        on only when the line search fails (flat directions) and decays after good steps.
+        Converged when the relative parameter step, the constraint violation and the merit
+        change are all below ``tol``, or when the full undamped step would lower χ² by less
+        than 2·``STAT_TOL`` at a feasible point (a damped step that would is judged by the
+        stall rule on the undamped one).
         A solve that gains less than ``STAT_TOL`` in ``STALL_ITERS`` accepted iterations
         in a row stops: ``Stalled_Within_Tolerance`` (a success) if the constraints hold
         to ``STALL_FEAS`` and the linearised problem's solution is within ``STALL_TOL``

@@ -393,6 +393,32 @@ def test_a_solve_whose_line_search_always_fails_does_not_move(small_fit, monkeyp
     assert np.array_equal(res["w"], w)
 
 
+def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, monkeypatch):
+    """At the solution, every trial point made worse: the damping rises until the damped
+    step promises less than stat_tol. That is not convergence (the damping grew because
+    steps failed); the undamped step decides, by the stall rule."""
+    import identify.nlp as nlp
+
+    prob, w = small_fit.problem, small_fit.w.copy()
+    prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP)
+    true_evaluate = prob.evaluate
+
+    def worse_away(x, jac=False):
+        out = true_evaluate(x, jac)
+        if not jac and not np.array_equal(x, w):
+            out = (out[0] + 10.0, out[1])
+        return out
+
+    monkeypatch.setattr(prob, "evaluate", worse_away)
+    said = []
+    monkeypatch.setattr(prob, "_stalled", lambda *a, **kw: said.append(kw) or (nlp.STALLED, True))
+    res = prob.solve_gn(w)
+    # (no step is accepted, so the only call is the damped-convergence one; before,
+    # this ended "Solve_Succeeded")
+    assert res["status"] == nlp.STALLED and said == [dict(damped=False)]
+    assert np.array_equal(res["w"], w)
+
+
 def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, monkeypatch):
     import identify.nlp as nlp
 
