@@ -214,6 +214,13 @@ def below_top(s, ops=np, eps: float = START_MARGIN):
     return 1 - eps * g
 
 
+def _kkt_solve(H, Jg, grad, g, free):
+    """Solution (step on ``free``, then multipliers) of the linearised least-squares
+    problem's KKT system; RuntimeError when it is singular (sparse LU)."""
+    K = sp.bmat([[H[free][:, free], Jg[:, free].T], [Jg[:, free], None]], format="csc")
+    return spla.splu(K).solve(np.r_[-grad[free], -g])
+
+
 def _blockdiag_sparsity(rows: int, cols: int, E: int) -> ca.Sparsity:
     """E dense rows × cols blocks on the diagonal (column-major nonzeros = vec of the
     rows × cols·E matrix of the blocks side by side)."""
@@ -663,9 +670,8 @@ class Problem:
             d = None
             for _ in range(20):  # hold variables at a bound that the step pushes outwards
                 free = np.nonzero(~hold)[0]
-                K = sp.bmat([[H[free][:, free], Jg[:, free].T], [Jg[:, free], None]], format="csc")
                 try:
-                    sol = spla.splu(K).solve(np.r_[-grad[free], -g])
+                    sol = _kkt_solve(H, Jg, grad, g, free)
                 except RuntimeError:
                     d = None
                     break
@@ -692,11 +698,9 @@ class Problem:
                     # a damped step's prediction is short along the flat directions: the
                     # damping grew because steps failed, so the solve has stopped gaining,
                     # not converged; judged as a stall on the undamped step
-                    K0 = sp.bmat([[(Jr.T @ Jr).tocsc()[free][:, free], Jg[:, free].T], [Jg[:, free], None]],
-                                 format="csc")
                     try:
                         d0 = np.zeros(self.n_w)
-                        d0[free] = spla.splu(K0).solve(np.r_[-grad[free], -g])[: len(free)]
+                        d0[free] = _kkt_solve((Jr.T @ Jr).tocsc(), Jg, grad, g, free)[: len(free)]
                         status, success = self._stalled(it, r0, Jr, d0, g, damped=False)
                     except RuntimeError:
                         status, success = "Stalled", False

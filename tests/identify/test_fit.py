@@ -376,9 +376,8 @@ def test_a_solve_whose_arc_jacobian_is_wrong_stops_as_stalled(small_fit, monkeyp
     assert np.abs(true_evaluate(res["w"])[1]).max() > nlp.STALL_FEAS
 
 
-def test_a_solve_whose_line_search_always_fails_does_not_move(small_fit, monkeypatch):
-    """Every trial point worse: the damping escalates and the solve ends where it began."""
-    prob, w, _ = _off_solution(small_fit)
+def _worse_away_from(w, prob, monkeypatch):
+    """Every point but ``w`` evaluates 10 worse in ½χ²: every line search fails."""
     true_evaluate = prob.evaluate
 
     def worse_away(x, jac=False):
@@ -388,6 +387,12 @@ def test_a_solve_whose_line_search_always_fails_does_not_move(small_fit, monkeyp
         return out
 
     monkeypatch.setattr(prob, "evaluate", worse_away)
+
+
+def test_a_solve_whose_line_search_always_fails_does_not_move(small_fit, monkeypatch):
+    """Every trial point worse: the damping escalates and the solve ends where it began."""
+    prob, w, _ = _off_solution(small_fit)
+    _worse_away_from(w, prob, monkeypatch)
     res = prob.solve_gn(w)
     assert res["status"] == "Line_Search_Failed" and not res["success"]
     assert np.array_equal(res["w"], w)
@@ -401,15 +406,7 @@ def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, mon
 
     prob, w = small_fit.problem, small_fit.w.copy()
     prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP)
-    true_evaluate = prob.evaluate
-
-    def worse_away(x, jac=False):
-        out = true_evaluate(x, jac)
-        if not jac and not np.array_equal(x, w):
-            out = (out[0] + 10.0, out[1])
-        return out
-
-    monkeypatch.setattr(prob, "evaluate", worse_away)
+    _worse_away_from(w, prob, monkeypatch)
     said = []
     monkeypatch.setattr(prob, "_stalled", lambda *a, **kw: said.append(kw) or (nlp.STALLED, True))
     res = prob.solve_gn(w)
