@@ -105,7 +105,8 @@ def _one_repeat(args):
     except Exception as err:  # one failed repeat is data, not a crash
         return dict(seed=seed, error=f"{type(err).__name__}: {err}")
     out = dict(seed=seed, wall_s=time.perf_counter() - t0, success=bool(res.solver["success"]),
-               iterations=res.solver["iterations"], normal_loads_uN=[c[1] for c in conds])
+               iterations=res.solver["iterations"], status=res.solver["status"], reduced_chi2=res.redchi,
+               start=res.start_source, normal_loads_uN=[c[1] for c in conds])
     # every covariance at the same solution: one calibration measures them all
     other = {mode: res.uncertainty(mode) for mode in COVARIANCES}
     for n in FREE:
@@ -194,6 +195,13 @@ def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitt
     walls = [r["wall_s"] for r in ok]
     if walls:
         print(f"  time per fit: median {np.median(walls):.1f} s (workers {workers})")
+    # does the second solve of a suspect solution ever pay? (it costs a third of a stall's time)
+    started = [r for r in ok if "start" in r]
+    again = [r for r in started if "solved again" in r["start"]]
+    if started:
+        kept = [r["seed"] for r in again if r["start"].endswith(": kept")]
+        print(f"  suspect re-solve: {len(again)} of {len(started)} fits, kept in {len(kept)}"
+              + (f" (seeds {', '.join(map(str, kept))})" if kept else ""))
     errors = [r for r in rows if "error" in r]
     for r in errors:
         print(f"  repeat {r['seed']} failed: {r['error']}")
