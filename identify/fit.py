@@ -10,25 +10,25 @@ sequence with the fitted model and hands the solution to :mod:`identify.report`.
 from __future__ import annotations
 
 import logging
-import math
 import time
-from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
 
 import numpy as np
 
 from .laws import get_law
-from .model import LENGTH_UNIT, Model
+from .model import Model
 from .missed import missed_slips
 from .nlp import Problem
 from .params import parameter_set, spec
+from .rundata import RunData, _run_data
+from .sequence import _ambiguous_triggers, _misfit_triggers, _with_triggers
 
 __all__ = ["FitOptions", "fit", "FitError", "RunData", "prepare_runs"]
 
 log = logging.getLogger(__name__)
 
 DEFAULT_FREE = ("mu_max", "mu_min", "tau", "A")
-SIGMA_FLOOR = 1e-12 / math.sqrt(12)  # m: rounding of the trace format's 6 decimals in µm
 
 
 class FitError(ValueError):
@@ -177,37 +177,6 @@ class FitOptions:
 
 
 # ----------------------------------------------------------------------------- data
-@dataclass
-class RunData:
-    """One run prepared for the NLP (numbers from its detected events)."""
-
-    name: str
-    kind: str  # "events" or "creep"
-    k: float
-    Nb: float
-    fp: float
-    step_nominal: float
-    sigma: float  # frame noise, m
-    n_frames: int
-    # events runs: per plateau
-    plateau_n: np.ndarray | None = None
-    plateau_mean_e: np.ndarray | None = None  # m
-    plateau_mean_steps: np.ndarray | None = None
-    plateau_level0: np.ndarray | None = None  # data estimate of the block position, m
-    plateau_mean_t: np.ndarray | None = None  # mean frame time, s (drift)
-    frame_phases: np.ndarray | None = None  # distinct step phases of the frames (motion blur)
-    phase_counts: np.ndarray | None = None  # plateaus × phases: frame counts
-    s_nn: float = 0.0  # pooled within-plateau Σ(n − n̄)²
-    slope_hat: float = 0.0  # pooled within-plateau staircase slope, m/step
-    s_res: float = 0.0  # pooled within-plateau residual sum of squares, m²
-    # per slip
-    trigger_steps: np.ndarray | None = None
-    # creep runs
-    steady_mean_e: float = float("nan")
-    steady_se: float = float("nan")
-    events: Any = None
-
-
 def prepare_runs(items, *, coating: str | None = None, noise_m: float | None = None):
     """Traces, RunEvents or paths -> (usable RunData list, excluded [(name, reason)], coating).
 
@@ -246,135 +215,6 @@ def prepare_runs(items, *, coating: str | None = None, noise_m: float | None = N
     return runs, excluded, coating
 
 
-def _resolved_slips(ev) -> bool:
-    """Most of the block's travel happens in slips much longer than a puller step: the
-    run is event-based even when the block also creeps between slips (the model as
-    written has creep tails). A creeping block, cut by the segmentation into many small
-    'slips' of a step or two, fails this."""
-    d = np.asarray(ev.slips.get("slip_length_m", []), float)
-    big = d > 10 * ev.trace.step_size
-    return int(big.sum()) >= 2 and d[big].sum() > 0.5 * np.abs(d).sum()
-
-
-def _plateaus_from_triggers(ev, triggers: np.ndarray, moving_s: np.ndarray | None = None) -> np.ndarray:
-    """Plateau index of every frame for given trigger steps: frames before trigger i's
-    step belong to plateau i, later ones to plateau i + 1; frames while the block moves
-    (from the trigger step for ``moving_s[i]`` seconds) are left out (−1)."""
-    steps = ev.steps
-    pof = np.searchsorted(np.asarray(triggers), steps, side="right").astype(int)
-    if moving_s is not None and len(triggers):
-        t = ev.trace.time_s
-        fp = ev.trace.step_frequency
-        t_trig = (np.asarray(triggers, float) + ev.step_phase) / fp
-        k = np.clip(pof - 1, 0, len(triggers) - 1)
-        inside = (pof >= 1) & (t >= t_trig[k]) & (t < t_trig[k] + np.asarray(moving_s)[k])
-        pof[inside] = -1
-    return pof
-
-
-def _run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray | None = None) -> RunData:
-    tr = ev.trace
-    # noiseless files still carry the print precision (1e-6 µm): uniform rounding error
-    sigma = max(float(ev.noise_m), SIGMA_FLOOR)
-    base = dict(name=tr.name, k=tr.spring_constant, Nb=tr.normal_load, fp=tr.step_frequency,
-                step_nominal=tr.step_size, sigma=sigma, n_frames=len(tr.time_s), events=ev)
-    if ev.regime != "stick-slip" and not _resolved_slips(ev):
-        # steady part: the second half of the run (after any loading transient)
-        e = tr.elongation[len(tr.elongation) // 2:]
-        se = math.sqrt(ev.noise_m**2 / max(len(e), 1) + (tr.step_size / math.sqrt(12)) ** 2)
-        return RunData(kind="creep", steady_mean_e=float(np.mean(e)), steady_se=se, **base)
-    if triggers is None:
-        triggers = np.asarray(ev.slips["trigger_step"], int)
-        pof = ev.plateau_of_frame
-    else:
-        pof = _plateaus_from_triggers(ev, triggers, moving_s)
-    steps = ev.steps.astype(float)
-    e = tr.elongation
-    P = len(triggers) + 1
-    use = pof >= 0
-    n = np.bincount(pof[use], minlength=P).astype(float)
-    sum_e = np.bincount(pof[use], weights=e[use], minlength=P)
-    sum_s = np.bincount(pof[use], weights=steps[use], minlength=P)
-    mean_e, mean_s = sum_e / np.maximum(n, 1), sum_s / np.maximum(n, 1)
-    de = e[use] - mean_e[pof[use]]
-    ds = steps[use] - mean_s[pof[use]]
-    s_nn, s_en, s_ee = float(ds @ ds), float(de @ ds), float(de @ de)
-    slope = s_en / s_nn if s_nn > 0 else tr.step_size
-    s_res = s_ee - (s_en**2 / s_nn if s_nn > 0 else 0.0)
-    level0 = tr.step_size * mean_s - mean_e  # data estimate of each plateau's block position
-    t = np.asarray(tr.time_s, float)
-    mean_t = np.bincount(pof[use], weights=t[use], minlength=P) / np.maximum(n, 1)
-    u = np.round(np.mod(t[use] * tr.step_frequency - ev.step_phase, 1.0), 6) % 1.0
-    phases, ui = np.unique(u, return_inverse=True)
-    counts = np.zeros((P, len(phases)))
-    np.add.at(counts, (pof[use], ui), 1.0)
-    return RunData(
-        kind="events", plateau_n=n, plateau_mean_e=mean_e, plateau_mean_steps=mean_s,
-        plateau_level0=level0, plateau_mean_t=mean_t, frame_phases=phases, phase_counts=counts, s_nn=s_nn, slope_hat=slope,
-        s_res=max(s_res, 0.0), trigger_steps=np.asarray(triggers, int), **base,
-    )
-
-
-def _carry(old_steps, values, new_steps):
-    """Per-slip values (e.g. moving times) carried to a new trigger list: a slip keeps
-    its value by position when only triggers moved, an inserted one takes the preceding
-    old slip's (the following one is the merged slip, its value inflated)."""
-    if values is None:
-        return None
-    old_steps, values = np.asarray(old_steps), np.asarray(values)
-    if len(new_steps) == len(old_steps):
-        return values
-    prev = np.clip(np.searchsorted(old_steps, new_steps, side="right") - 1, 0, len(old_steps) - 1)
-    return values[prev]
-
-
-def _carry_horizons(old, new) -> np.ndarray:
-    """Arc horizons (steps) of the previous problem carried to the new one, never past
-    the next trigger."""
-    M = np.ones(new.E, int)
-    for ri in np.unique(new.ev_run):
-        sel_new, sel_old = new.ev_run == ri, old.ev_run == ri
-        M[sel_new] = _carry(old.ev_step[sel_old], old.ev_M[sel_old], new.ev_step[sel_new])
-    return np.maximum(np.minimum(M, new.ev_gap), 1)
-
-
-def _carry_solution(old, new, w: np.ndarray) -> np.ndarray:
-    """The previous solution as a start for the new mode sequence: parameters, offsets
-    and phases as they were; each plateau the position of the old plateau it lies in,
-    an inserted plateau its position in the frames; each run's first slip its start
-    position, the other starts mid-interval until :meth:`Problem.settle_arcs` sets them
-    from the arcs."""
-    if new.n_w == old.n_w:
-        return w.copy()
-    v = np.zeros(new.n_w)  # every entry is set below
-    v[: old.i_x] = w[: old.i_x]
-    v[new.i_phi : new.i_s] = w[old.i_phi : old.i_s]
-    v[new.i_s : new.n_w] = 0.5
-    if new.n_s and old.n_s:  # the same runs, each with its first slip, in the same order
-        v[new.i_s + new.ev_firsts] = w[old.i_s + old.ev_firsts]
-    x_old = w[old.i_x : old.i_x + old.P]
-    p_new = p_old = 0
-    for ri, r in enumerate(new.runs):
-        if r.kind != "events":
-            continue
-        t_old, t_new = old.runs[ri].trigger_steps, r.trigger_steps
-        # plateau j of the new run starts after trigger j − 1 (the first at the start)
-        for j in range(len(t_new) + 1):
-            if j == 0:
-                v[new.i_x + p_new + j] = x_old[p_old]
-                continue
-            k = int(np.searchsorted(t_old, t_new[j - 1], side="right"))
-            if k >= 1 and t_old[k - 1] == t_new[j - 1]:
-                v[new.i_x + p_new + j] = x_old[p_old + k]
-            else:  # inserted: its frames' level, shifted as the solution shifts the old plateau it was in
-                q = p_old + k
-                v[new.i_x + p_new + j] = (new.pl_x0[p_new + j] - old.pl_x0[q]) / LENGTH_UNIT + x_old[q]
-        p_new += len(t_new) + 1
-        p_old += len(t_old) + 1
-    return v
-
-
-# ----------------------------------------------------------------------------- driver
 REDUCED_Z = 1.96  # a reduced-analysis value starts the fit only if its 95 % interval excludes 0
 
 
@@ -436,162 +276,6 @@ def _suspect(prob, res) -> str:
     if not res.get("success"):
         return f"solver: {res.get('status')}, reduced χ² {redchi:.3g}"
     return f"reduced χ² {redchi:.3g}" if redchi > SUSPECT_REDCHI else ""
-
-
-def _with_triggers(prob, w, changes: dict, model, values, opts, say):
-    """The NLP with the trigger steps of ``changes`` ({run index: steps}) and ``w``
-    carried over to it (the frames taken while a block moved carried with their slips)."""
-    moving = prob.moving_times(w)
-    new_runs = []
-    for i, r in enumerate(prob.runs):
-        if r.kind != "events":
-            new_runs.append(r)
-            continue
-        steps = changes.get(i, r.trigger_steps)
-        new_runs.append(_run_data(r.events, triggers=steps, moving_s=_carry(r.trigger_steps, moving.get(i), steps)))
-    new = Problem(new_runs, model, values, opts)
-    new.ev_M = _carry_horizons(prob, new)
-    new.counter = prob.counter  # the timing report covers every solve, not just the last
-    new.progress = say
-    new.build()
-    return new, new.settle_arcs(_carry_solution(prob, new, w))
-
-
-def _other_step(steps, detected, j, alt, reach: int = 2):
-    """The run's trigger steps with detected slip j at ``alt``; neighbours within
-    ``reach`` slips that the mode sequence moved go back to their detected steps (a
-    late trigger bends the solution, and the local scores then move its neighbours).
-    None when slip j is not where it was detected or two slips would share a step."""
-    n = int(detected[j])
-    if n not in steps or alt in steps:
-        return None
-    new = np.where(steps == n, alt, steps)
-    det = set(int(d) for d in detected)
-    for k in range(max(j - reach, 0), min(j + reach + 1, len(detected))):
-        d = int(detected[k])
-        if k == j or d in new:
-            continue
-        moved = [c for c in new if abs(int(c) - d) <= 2 and int(c) not in det and int(c) != alt]
-        if len(moved) == 1:
-            new = np.where(new == moved[0], d, new)
-    new = np.sort(new)
-    return new if np.all(np.diff(new) > 0) else None
-
-
-MAX_TRIGGER_TRIALS = 8
-TRIAL_ITER = 4
-# A trigger residual √12·(s − φ) beyond this puts the slip's start more than 0.58 of its
-# interval from the run's phase: outside the interval for a phase near mid-interval,
-# which no noise on a well-placed trigger does. Measured on the bundled FOTAS set: the
-# two moves the pass kept had −3.2 and +4.4 at their own slip and the next, the six it
-# rejected −0.17 on every neighbour; the late OTS trigger (identify.events) left 9.6
-# two slips after it.
-TRIGGER_GATE = 2.0
-GATE_REACH = 2  # the slip's own trigger and the next two (where a late one rings)
-
-
-def _trigger_misfit(prob, r: np.ndarray, i: int, n: int, reach: int = GATE_REACH) -> float:
-    """Largest |trigger residual| of run i's slip nearest step n and the ``reach`` slips
-    after it (a run's first slip has none), in the residual vector ``r``."""
-    evs = np.nonzero(prob.ev_run == i)[0]
-    if not len(evs):
-        return 0.0
-    k = int(np.argmin(np.abs(prob.ev_step[evs] - n)))
-    t0 = prob.residual_groups()["triggers"][0]
-    row = {int(e): t0 + q for q, e in enumerate(prob.ev_next)}
-    vals = np.array([r[row[int(e)]] for e in evs[k:k + reach + 1] if int(e) in row], float)
-    # a trigger the model cannot evaluate is as misfit as it gets
-    return float(np.max(np.where(np.isfinite(vals), np.abs(vals), np.inf))) if vals.size else 0.0
-
-
-def _ambiguous_triggers(prob, best, model, values, opts, say):
-    """Try the other step of each slip whose detected trigger the frames leave ambiguous
-    (:data:`identify.events.AMBIGUOUS_RSS`), most ambiguous first, against the whole model.
-
-    A slip put a step late by the noise on its neighbouring frames loads the model's
-    arc with one step too many; the chain of slips after it rings (each plateau is the
-    last plus a slip) and the parameters bend to absorb it. The local scores of
-    :meth:`Problem.refine_triggers` hold the plateaus at their fitted, already bent,
-    levels and miss it (measured: they moved the next slip two steps late instead); a
-    short re-solve (:data:`TRIAL_ITER` iterations) does not. Only slips whose own or
-    next triggers misfit (:data:`TRIGGER_GATE`) are tried: on data whose triggers fit, a
-    trial costs a rebuild and a re-solve and gains nothing (measured on the bundled FOTAS
-    set: 8 trials, 2 kept, 42 iterations against 8 without the pass). Each trial also puts the
-    neighbours the mode sequence moved back where they were detected (:func:`_other_step`).
-    A move is kept when it lowers χ² beyond what the frames it uses expect (χ² − number
-    of observations: a trial can leave a frame more or less out as moving), and the
-    kept sequence is solved to convergence before the next trial. Returns (problem,
-    solution, slips moved)."""
-    from .events import AMBIGUOUS_RSS
-
-    cands = []
-    for i, r in enumerate(prob.runs):
-        if r.kind != "events":
-            continue
-        sl = r.events.slips
-        for j, (alt, m) in enumerate(zip(sl.get("alt_trigger_step", ()), sl.get("alt_margin", ()))):
-            if alt >= 0 and m < AMBIGUOUS_RSS:
-                cands.append((float(m), i, j, int(alt)))
-    if not cands:
-        return prob, best, 0
-    cands = sorted(cands)
-    def excess(p, r):  # χ² above its expectation
-        return float(np.sum(r ** 2)) + p.chi2_constant() - p.n_observations()
-
-    r_now = prob.residuals(best["w"])
-    now = excess(prob, r_now)
-    short = replace(opts, max_iter=TRIAL_ITER)
-    base_its, base_wall = best["iterations"], best["wall_s"]
-    moved, tried, fit_there, its, wall = 0, 0, 0, 0, 0.0
-    say(f"{len(cands)} ambiguous slip trigger(s): trying the other step of those whose triggers misfit "
-        f"(|residual| > {TRIGGER_GATE:g} at the slip or the next {GATE_REACH})")
-    for _, i, j, alt in cands:
-        n = int(prob.runs[i].events.slips["trigger_step"][j])
-        misfit = _trigger_misfit(prob, r_now, i, n)
-        if misfit <= TRIGGER_GATE:
-            fit_there += 1
-            log.info("ambiguous trigger (run %d, step %d) not tried: its triggers fit (|r| <= %.2f)", i, n, misfit)
-            continue
-        steps = np.asarray(prob.runs[i].trigger_steps, int)
-        new_steps = _other_step(steps, np.asarray(prob.runs[i].events.slips["trigger_step"], int), j, alt)
-        if new_steps is None:
-            continue
-        if tried == MAX_TRIGGER_TRIALS:
-            log.info("ambiguous triggers: stopped after %d trials", tried)
-            break
-        tried += 1
-        try:
-            trial, w0 = _with_triggers(prob, best["w"], {i: new_steps}, model, values, short, say)
-            sol = trial.solve(w0)
-            f = excess(trial, trial.residuals(sol["w"])) if np.isfinite(sol["f"]) else np.inf
-        except Exception as err:  # a trial that cannot be evaluated is not taken
-            log.info("trigger trial (run %d, step %d -> %d) failed: %s", i, n, alt, err)
-            continue
-        its, wall = its + sol["iterations"], wall + sol["wall_s"]
-        kept = f < now - 1.0
-        say(f"  {prob.runs[i].name}: slip at step {n} tried at {alt}: chi2 - n_obs {now:.1f} -> {f:.1f}, "
-            + ("kept" if kept else "not kept"))
-        if not kept:
-            continue
-        # solved to convergence before the next trial: compared with a 4-iteration
-        # point, the next trial's own extra iterations would count as its gain
-        prob, best, moved = trial, dict(sol, success=False), moved + 1
-        prob.opts = opts
-        if opts.solver == "ipopt":
-            prob.build()  # (Ipopt's iteration limit is built into its solver object)
-        try:
-            full = prob.solve(best["w"])
-            its, wall = its + full["iterations"], wall + full["wall_s"]
-            if np.isfinite(full["f"]) and full["f"] <= best["f"]:
-                best = full
-        except Exception as err:  # the trial's solution stands
-            log.info("solve after a kept trigger move failed: %s", err)
-        r_now = prob.residuals(best["w"])
-        now = excess(prob, r_now)
-    if fit_there:
-        say(f"  {fit_there} other ambiguous trigger(s) not tried: the model's triggers fit there")
-    best["iterations"], best["wall_s"] = base_its + its, base_wall + wall
-    return prob, best, moved
 
 
 def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
@@ -763,8 +447,11 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     # then the detector's ambiguous triggers, against the repaired sequence (tried before
     # it, on merged slips, they moved correct triggers: calibration seeds 1 and 4)
     prob, best, n_alt = _ambiguous_triggers(prob, best, model, values, opts, say)
-    best["triggers_moved"] = refined + n_alt
-    best["slips_inserted"] = inserted
+    # last, whatever the local scores and the detector left where the model's triggers misfit
+    prob, best, n_seq = _misfit_triggers(prob, best, model, values, opts, say)
+    best["triggers_moved"] = refined + n_alt + n_seq["moved"]
+    best["slips_inserted"] = inserted + n_seq["inserted"]
+    best["slips_removed"] = n_seq["removed"]
     say("covariance")
     prob.progress = None  # the result keeps the problem; the caller's callback is not its business
     result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,

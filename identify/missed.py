@@ -21,7 +21,7 @@ import numpy as np
 
 from .model import LENGTH_UNIT
 
-__all__ = ["missed_slips"]
+__all__ = ["best_split", "missed_slips"]
 
 MIN_FRAMES = 3  # frames on each side of an inserted slip (the detector's shortest plateau)
 
@@ -51,23 +51,56 @@ def _predicted_triggers(prob, w, Y0, P) -> np.ndarray:
     return out
 
 
+def best_split(prob, w: np.ndarray, e: int, upto: float = np.inf, accept=None):
+    """The best place for a slip among the frames after slip e and before the next
+    trigger: the two-level χ² gain n₁n₂/(n₁+n₂)·(d/σ)² of splitting them at each step
+    up to ``upto`` (at least ``MIN_FRAMES`` frames each side; d > 0 the forward jump of
+    the block position), among the splits ``accept(gain, d, positions tried)`` passes.
+    Returns (gain, step, jump in m), or None."""
+    P = prob.params(w[: prob.n_theta])
+    step = float(prob.model.step(P))
+    ri = int(prob.ev_run[e])
+    run = prob.runs[ri]
+    ev = run.events
+    off = w[prob.i_off + ri] * LENGTH_UNIT if prob.n_off else 0.0
+    last = prob.ev_step[e + 1] if e + 1 < prob.E and not prob.ev_first[e + 1] else np.inf
+    sel = (ev.steps >= prob.ev_step[e] + prob.ev_M[e]) & (ev.steps < last)
+    steps = ev.steps[sel]
+    if steps.size < 2 * MIN_FRAMES:
+        return None
+    block = step * steps - (ev.trace.elongation[sel] - off)  # block position per frame
+    cands = np.unique(steps[(steps > steps.min()) & (steps <= upto)])
+    ok = accept or (lambda gain, d, tried: True)
+    best = None
+    for n in cands:
+        after = steps >= n
+        n2 = int(after.sum())
+        n1 = steps.size - n2
+        if n1 < MIN_FRAMES or n2 < MIN_FRAMES:
+            continue
+        d = block[after].mean() - block[~after].mean()
+        gain = n1 * n2 / (n1 + n2) * (d / run.sigma) ** 2
+        if d > 0 and ok(gain, d, cands.size) and (best is None or gain > best[0]):
+            best = (float(gain), int(n), float(d))
+    return best
+
+
 def missed_slips(prob, w: np.ndarray, min_gain: float = 9.0):
     """Slips to insert where the fitted model predicts one inside a detected plateau and
     the frames show it.
 
     Per slip e, with n* the model's next trigger after it, inside the plateau that
-    follows e: the two-level χ² gain n₁n₂/(n₁+n₂)·(d/σ)² of splitting the plateau at
-    each step up to n* + 2 (at least ``MIN_FRAMES`` frames each side; d the forward jump
-    of the block position). The best split is kept when its jump is at least half the
-    run's median slip and its gain ≥ ``min_gain`` + 2·ln(positions tried) (3σ, plus
-    the price of the scan).
+    follows e: the best split of that plateau (:func:`best_split`) at the steps up to
+    n* + 2 is kept when its jump is at least half the run's median slip and its gain ≥
+    ``min_gain`` + 2·ln(positions tried) (3σ, plus the price of the scan). The model's
+    step is approximate (the merged plateau's fitted position is a compromise of its
+    two levels): hence the scan up to it.
 
     Returns ({run index: trigger steps with the insertions}, number inserted).
     """
     if not prob.E:
         return {}, 0
     P = prob.params(w[: prob.n_theta])
-    step = float(prob.model.step(P))
     Y0 = prob.arc_outputs(w)
     n_pred = _predicted_triggers(prob, w, Y0, P)
     median_slip = {}
@@ -76,32 +109,10 @@ def missed_slips(prob, w: np.ndarray, min_gain: float = 9.0):
     inserted: dict[int, list] = {}
     for e in np.nonzero(np.isfinite(n_pred))[0]:
         ri = int(prob.ev_run[e])
-        run = prob.runs[ri]
-        ev = run.events
-        off = w[prob.i_off + ri] * LENGTH_UNIT if prob.n_off else 0.0
-        last = prob.ev_step[e + 1] if e + 1 < prob.E and not prob.ev_first[e + 1] else np.inf
-        sel = (ev.steps >= prob.ev_step[e] + prob.ev_M[e]) & (ev.steps < last)
-        steps = ev.steps[sel]
-        if steps.size < 2 * MIN_FRAMES:
-            continue
-        block = step * steps - (ev.trace.elongation[sel] - off)  # block position per frame
-        # the model's step is approximate (the merged plateau's fitted position is a
-        # compromise of its two levels): scan up to it, paying for the positions tried
-        cands = np.unique(steps[(steps > steps.min()) & (steps <= n_pred[e] + 2)])
-        threshold = min_gain + 2.0 * np.log(max(cands.size, 1))
-        best = None
-        for n in cands:
-            after = steps >= n
-            n2 = int(after.sum())
-            n1 = steps.size - n2
-            if n1 < MIN_FRAMES or n2 < MIN_FRAMES:
-                continue
-            d = block[after].mean() - block[~after].mean()
-            gain = n1 * n2 / (n1 + n2) * (d / run.sigma) ** 2
-            if d >= 0.5 * median_slip[ri] and gain >= threshold and (best is None or gain > best[0]):
-                best = (gain, int(n))
-        if best is not None:
-            inserted.setdefault(ri, []).append(best[1])
+        split = best_split(prob, w, e, upto=n_pred[e] + 2, accept=lambda gain, d, tried: (
+            d >= 0.5 * median_slip[ri] and gain >= min_gain + 2.0 * np.log(max(tried, 1))))
+        if split is not None:
+            inserted.setdefault(ri, []).append(split[1])
     changes = {}
     for ri, new in inserted.items():
         steps = prob.runs[ri].trigger_steps

@@ -20,7 +20,7 @@ __all__ = ["plot_profile", "plot_run_fit", "plot_static_friction", "plot_slip_le
 
 def _model_staircase(result, i_run):
     """(frame times, model elongation, plateau of frame) of events run ``i_run``."""
-    from .fit import _plateaus_from_triggers
+    from .rundata import _plateaus_from_triggers
 
     prob, w = result.problem, result.w
     rd = prob.runs[i_run]

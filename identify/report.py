@@ -130,7 +130,8 @@ class FitResult:
             f"    solver             = {s['method']}: {s['status']} after {s['iterations']} "
             f"iterations, {s['wall_time_s']:.2f} s",
             f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved, "
-            f"{s.get('slips_inserted', 0)} missed slip(s) inserted by the fit",
+            f"{s.get('slips_inserted', 0)} missed slip(s) inserted, "
+            f"{s.get('slips_removed', 0)} spurious slip(s) removed by the fit",
             f"    chi-square         = {self.chi2:.6g}",
             f"    reduced chi-square = {self.redchi:.6g}  (dof = {self.dof})",
             f"    Akaike info crit   = {self.aic:.6g}",
@@ -321,6 +322,7 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
         solver=dict(status=best["status"], success=best["success"], iterations=best["iterations"],
                     wall_time_s=float(wall_s), triggers_moved=int(best.get("triggers_moved", 0)),
                     slips_inserted=int(best.get("slips_inserted", 0)),
+                    slips_removed=int(best.get("slips_removed", 0)),
                     method=("Gauss-Newton SQP (Gauss-Newton Hessian, l1-merit line search)"
                             if prob.opts.solver == "gauss-newton" else "Ipopt (Gauss-Newton Hessian)")),
         multistart=dict(starts=len(results), best_found=found, costs=[float(x["f"]) for x in results]),

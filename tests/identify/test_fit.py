@@ -268,7 +268,7 @@ def _late_trigger(ev, j, margin):
 
 
 def test_other_step_puts_moved_neighbours_back():
-    from identify.fit import _other_step
+    from identify.sequence import _other_step
 
     detected = np.array([10, 20, 30, 40, 50])
     # slip 2 detected at 30, its alternative 29; the mode sequence had moved slip 3 to 42
@@ -286,7 +286,7 @@ def test_trigger_misfit_reads_the_slip_and_the_next_two():
     slip nearest the step and the two after it, in that run only (a first slip has none)."""
     from types import SimpleNamespace
 
-    from identify.fit import _trigger_misfit
+    from identify.sequence import _trigger_misfit
 
     # run 0: events 0-4 at steps 10-50; run 1: events 5-6; trigger rows from 3, one per
     # event with a predecessor (ev_next), in that order
@@ -330,6 +330,106 @@ def test_an_ambiguous_trigger_is_tried_at_its_other_step(small_traces, margin, m
         assert steps[j] == n and res.solver["triggers_moved"] >= 1
     else:
         assert not any(f"step {n + 1} tried" in m for m in tried)
+
+
+def test_the_changes_tried_where_a_trigger_misfits():
+    from identify.sequence import _moves
+
+    m = {label: (steps, kind, n) for label, steps, kind, n in _moves(np.array([10, 15, 20, 25]), 2, 17, 40)}
+    assert m["slip at step 20 to 19"] == ([10, 15, 19, 25], "moved", 1)
+    assert m["slip at step 15 to 16"] == ([10, 16, 20, 25], "moved", 1)
+    assert m["slips at steps 15, 20 to 14, 19"] == ([10, 14, 19, 25], "moved", 2)
+    assert m["slips at steps 20, 25 to 21, 26"] == ([10, 15, 21, 26], "moved", 2)
+    assert m["slip inserted at step 17"] == ([10, 15, 17, 20, 25], "inserted", 1)
+    assert m["slip at step 20 removed"] == ([10, 15, 25], "removed", 1)
+    assert len(m) == 10  # two singles and two pairs each way, the insertion, the removal
+    # never two slips at one step, nor a slip past the run's last step
+    tight = {label for label, *_ in _moves(np.array([10, 11, 20]), 1, 13, 20)}
+    assert "slip at step 11 to 10" not in tight and "slip at step 10 to 11" not in tight
+    assert "slips at steps 11, 20 to 12, 21" not in tight and "slips at steps 11, 20 to 10, 19" not in tight
+    assert "slip inserted at step 13" not in tight  # not between slips 0 and 1
+    assert tight == {"slip at step 11 to 12", "slip at step 10 to 9", "slips at steps 10, 11 to 9, 10",
+                     "slips at steps 10, 11 to 11, 12", "slip at step 11 removed"}
+
+
+def test_a_change_kept_elsewhere_leaves_a_tried_one_untried():
+    from identify.sequence import LOCAL_SLIPS, _local
+
+    T = [10 * j for j in range(1, 21)]
+    k = 10  # step 110
+    change = [s + 1 if s == 110 else s for s in T]
+    key = _local(T, k, change)
+    far = [s for s in T if s != 30]  # a slip removed well outside the reach, before k
+    assert _local(far, k - 1, [s + 1 if s == 110 else s for s in far]) == key
+    near = [s + 1 if s == 110 - 10 * (LOCAL_SLIPS - 1) else s for s in T]
+    assert _local(near, k, [s + 1 if s == 110 else s for s in near]) != key
+
+
+def test_flagged_triggers_worst_first():
+    from types import SimpleNamespace
+
+    from identify.sequence import _flagged
+
+    runs = [SimpleNamespace(trigger_steps=np.array([10, 20, 30, 40, 50])),
+            SimpleNamespace(trigger_steps=np.array([10, 20]))]
+    prob = SimpleNamespace(ev_run=np.array([0, 0, 0, 0, 0, 1, 1]),
+                           ev_step=np.array([10, 20, 30, 40, 50, 10, 20.0]), runs=runs,
+                           ev_next=np.array([1, 2, 3, 4, 6]), residual_groups=lambda: {"triggers": (3, 8)})
+    r = np.zeros(8)
+    r[3 + 1], r[3 + 3], r[3 + 4] = -2.5, 1.9, np.nan  # events 2, 4 and 6
+    assert _flagged(prob, r) == [(np.inf, 1, 1), (2.5, 0, 2)]
+
+
+def _detected_at(ev, triggers):
+    """``ev`` as if the detector had put slips at ``triggers`` and named no alternative:
+    per-slip and per-plateau values from the nearest detected ones, frames assigned to
+    plateaus by step (those left out as moving stay out)."""
+    import dataclasses
+
+    from identify.rundata import _plateaus_from_triggers
+
+    triggers = np.asarray(triggers, int)
+    old = np.asarray(ev.slips["trigger_step"])
+    j = np.clip(np.searchsorted(old, triggers), 0, len(old) - 1)
+    slips = {k: np.asarray(v)[j].copy() for k, v in ev.slips.items()}
+    slips["trigger_step"] = triggers
+    slips["alt_trigger_step"] = np.full(len(triggers), -1)
+    slips["alt_margin"] = np.full(len(triggers), np.inf)
+    q = np.r_[0, np.clip(np.searchsorted(old, triggers, side="right"), 0, len(old))]
+    plateaus = {k: np.asarray(v)[q].copy() for k, v in ev.plateaus.items()}
+    pof = _plateaus_from_triggers(ev, triggers)
+    pof[ev.plateau_of_frame < 0] = -1
+    return dataclasses.replace(ev, plateau_of_frame=pof, slips=slips, plateaus=plateaus)
+
+
+@pytest.mark.parametrize("error", ["late", "spurious", "merged"])
+def test_a_wrong_slip_is_repaired_where_its_trigger_misfits(small_traces, error, monkeypatch):
+    """A slip detected a step late (and not marked ambiguous), a slip the detector made
+    up in the middle of a plateau, two slips merged into one: with the local scores and
+    the missed-slip scan switched off, the misfit-trigger pass finds each where the
+    model's triggers misfit and puts the detector's true sequence back."""
+    import importlib
+
+    from identify.events import extract_events
+
+    monkeypatch.setattr(Problem, "refine_triggers", lambda self, w, **kw: ({}, 0))
+    monkeypatch.setattr(importlib.import_module("identify.fit"), "missed_slips", lambda prob, w: ({}, 0))
+    evs = [extract_events(t) for t in small_traces]
+    true = np.asarray(evs[1].slips["trigger_step"], int)
+    j = len(true) // 2
+    wrong = {"late": np.where(np.arange(len(true)) == j, true + 1, true),
+             "spurious": np.sort(np.r_[true, (true[j] + true[j + 1]) // 2]),
+             "merged": np.delete(true, j)}[error]
+    said = []
+    truth = parameter_set("FOTAS")
+    res = fit([evs[0], _detected_at(evs[1], wrong)], progress=said.append, options=FitOptions(
+        fixed={"v_stick": V_STICK}, free=("mu_min", "A"), start={"mu_min": truth["mu_min"], "A": truth["A"]},
+        staged_start=False))
+    kept = [m for m in said if m.endswith(", kept")]
+    assert kept, said
+    np.testing.assert_array_equal(res.problem.runs[1].trigger_steps, true)
+    key = {"late": "triggers_moved", "spurious": "slips_removed", "merged": "slips_inserted"}[error]
+    assert res.solver[key] >= 1
 
 
 def _off_solution(small_fit):
