@@ -3,8 +3,10 @@
 The data fix the mode sequence (:mod:`identify.events`: plateaus separated by slips at
 trigger steps); :mod:`identify.nlp` builds the multiple-shooting NLP over all runs;
 :mod:`identify.start` gets its start near the solution (the reduced analysis first,
-DESIGN.md §2); this module prepares the runs, drives the solves, refines the mode
-sequence with the fitted model and hands the solution to :mod:`identify.report`.
+DESIGN.md §2); this module reads the runs (:mod:`identify.rundata` prepares each for the
+NLP), drives the solves, refines the mode sequence with the fitted model (local scores
+in :mod:`identify.nlp`, missed slips in :mod:`identify.missed`, trials against the whole
+model in :mod:`identify.sequence`) and hands the solution to :mod:`identify.report`.
 """
 
 from __future__ import annotations
@@ -82,6 +84,10 @@ class FitOptions:
         Threads for the arc evaluations.
     multistart : int
         Extra starts drawn around the first (log-normal, 30 %) with ``seed``.
+    sequence_trials : int
+        Trials of the last mode-sequence pass (:func:`identify.sequence._misfit_triggers`:
+        local changes where the model's triggers misfit, each a rebuild and a 4-iteration
+        re-solve of the whole problem); 0 turns it off. Data whose triggers fit pay none.
     scale_covariance : bool
         Scale the model-based covariance by the reduced χ² (lmfit's default).
     free_phase : bool
@@ -128,6 +134,7 @@ class FitOptions:
     tol: float = 1e-8
     threads: int = 2
     multistart: int = 0
+    sequence_trials: int = 64
     seed: int | None = None
     scale_covariance: bool = True
     covariance: str = "robust"
@@ -166,6 +173,8 @@ class FitOptions:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: must be a positive integer")
         if self.multistart < 0:
             raise ValueError(f"multistart = {self.multistart!r}: must be >= 0")
+        if self.sequence_trials < 0:
+            raise ValueError(f"sequence_trials = {self.sequence_trials!r}: must be >= 0")
         if self.arc_jacobian not in ("forward", "central"):
             raise ValueError(f"arc_jacobian = {self.arc_jacobian!r}: choose 'forward' or 'central'")
         if self.arc_start not in ("aged", "mid"):

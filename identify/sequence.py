@@ -5,9 +5,10 @@ uses expect.
 
 The detector fixes the sequence from the frames alone; at a few σ of slip length it
 places some triggers a step off, merges two slips or splits one. The fitted model says
-where it disagrees: a trigger residual √12·(s − φ) beyond ±√3 puts the model's slip in
-another step interval than the sequence's (:data:`TRIGGER_GATE`). The passes here try
-moves only there, so data whose triggers fit pay nothing.
+where it disagrees: a capacity crossing at a position s outside [0, 1] of the step
+interval puts the model's slip in another interval than the sequence's
+(:data:`TRIGGER_GATE`, read on √12·(s − ½), :func:`_centered`). The passes here try moves
+only there, so data whose triggers fit pay nothing.
 """
 
 from __future__ import annotations
@@ -126,19 +127,33 @@ def _other_step(steps, detected, j, alt, reach: int = 2):
 
 MAX_TRIGGER_TRIALS = 8
 TRIAL_ITER = 4
-# A trigger residual √12·(s − φ) beyond this puts the slip's start more than 0.58 of its
-# interval from the run's phase: outside the interval for a phase near mid-interval,
-# which no noise on a well-placed trigger does. Measured on the bundled FOTAS set: the
-# two moves the pass kept had −3.2 and +4.4 at their own slip and the next, the six it
-# rejected −0.17 on every neighbour; the late OTS trigger (identify.events) left 9.6
-# two slips after it.
+# A centred trigger residual √12·(s − ½) beyond this puts the capacity crossing 0.08 of
+# an interval outside the step interval the sequence gives the slip, which no noise on a
+# well-placed trigger does (read on the centred value: against the run's phase φ, a
+# well-placed trigger reaches √12·max(φ, 1 − φ), 2.5 at a measured φ = 0.71). Measured on
+# the bundled FOTAS set: the two moves the ambiguous pass kept had −3.2 and +4.4 at
+# their own slip and the next, the six it rejected −0.17 on every neighbour; the late
+# OTS trigger (identify.events) left 9.6 two slips after it.
 TRIGGER_GATE = 2.0
 GATE_REACH = 2  # the slip's own trigger and the next two (where a late one rings)
 
 
+def _centered(prob, w: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``r`` with each slip's trigger residual √12·(s − φ) read against mid-interval,
+    √12·(s − ½): where the crossing lies in its interval, whatever the run's phase φ."""
+    out = np.array(r, float, copy=True)
+    if not prob.E:
+        return out
+    t0 = prob.residual_groups()["triggers"][0]
+    phi = w[prob.i_phi : prob.i_phi + prob.n_phase]
+    k_of = np.array([prob.phase_of_run[int(ri)] for ri in prob.ev_run[prob.ev_next]], int)
+    out[t0 : t0 + len(prob.ev_next)] += np.sqrt(12) * (phi[k_of] - 0.5)
+    return out
+
+
 def _trigger_misfit(prob, r: np.ndarray, i: int, n: int, reach: int = GATE_REACH) -> float:
     """Largest |trigger residual| of run i's slip nearest step n and the ``reach`` slips
-    after it (a run's first slip has none), in the residual vector ``r``."""
+    after it (a run's first slip has none), in the (centred) residual vector ``r``."""
     evs = np.nonzero(prob.ev_run == i)[0]
     if not len(evs):
         return 0.0
@@ -219,7 +234,7 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
         return prob, best, 0
     cands = sorted(cands)
     r_now = prob.residuals(best["w"])
-    now = _excess(prob, r_now)
+    now, gate = _excess(prob, r_now), _centered(prob, best["w"], r_now)
     short = replace(opts, max_iter=TRIAL_ITER)
     base_its, base_wall = best["iterations"], best["wall_s"]
     moved, tried, fit_there, its, wall = 0, 0, 0, 0, 0.0
@@ -227,7 +242,7 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
         f"(|residual| > {TRIGGER_GATE:g} at the slip or the next {GATE_REACH})")
     for _, i, j, alt in cands:
         n = int(prob.runs[i].events.slips["trigger_step"][j])
-        misfit = _trigger_misfit(prob, r_now, i, n)
+        misfit = _trigger_misfit(prob, gate, i, n)
         if misfit <= TRIGGER_GATE:
             fit_there += 1
             log.info("ambiguous trigger (run %d, step %d) not tried: its triggers fit (|r| <= %.2f)", i, n, misfit)
@@ -252,7 +267,7 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
         prob, best, it_full, s_full = _keep(trial, sol, opts)
         moved, its, wall = moved + 1, its + it_full, wall + s_full
         r_now = prob.residuals(best["w"])
-        now = _excess(prob, r_now)
+        now, gate = _excess(prob, r_now), _centered(prob, best["w"], r_now)
     if fit_there:
         say(f"  {fit_there} other ambiguous trigger(s) not tried: the model's triggers fit there")
     best["iterations"], best["wall_s"] = base_its + its, base_wall + wall
@@ -261,13 +276,10 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
 
 
 
-MAX_SEQUENCE_TRIALS = 64  # trials of the misfit-trigger pass, over all its moves
-
-
 def _flagged(prob, r: np.ndarray) -> list:
-    """(|trigger residual|, run, slip index in its run) of the slips whose trigger
-    residual exceeds :data:`TRIGGER_GATE` (one the model cannot evaluate counts as
-    infinite), worst first."""
+    """(|trigger residual|, run, slip index in its run) of the slips whose centred
+    trigger residual (:func:`_centered`) exceeds :data:`TRIGGER_GATE` (one the model
+    cannot evaluate counts as infinite), worst first."""
     t0 = prob.residual_groups()["triggers"][0]
     out = []
     for q, e in enumerate(prob.ev_next):
@@ -307,20 +319,28 @@ def _moves(steps: np.ndarray, k: int, split: int | None, last_step: int) -> list
     if split is not None and T[k - 1] < split < T[k]:
         out.append((f"slip inserted at step {split}", sorted(T + [split]), "inserted", 1))
     out.append((f"slip at step {T[k]} removed", T[:k] + T[k + 1:], "removed", 1))
-    ok = lambda s: all(b > a for a, b in zip(s, s[1:])) and s[0] >= 0 and s[-1] <= last_step  # noqa: E731
+    # (a slip at the last step would leave the last plateau one step of frames)
+    ok = lambda s: all(b > a for a, b in zip(s, s[1:])) and s[0] >= 0 and s[-1] < last_step  # noqa: E731
     return [m for m in out if ok(m[1])]
 
 
 LOCAL_SLIPS = 3  # a change's reach along the run, in slips: a plateau chains to the next few
 
 
-def _local(steps_before, k: int, steps_after) -> tuple:
-    """Key of a change at slip k: the run's triggers after it, within ``LOCAL_SLIPS``
-    slips of k before it. A change kept elsewhere in the run leaves it as it was, so a
-    change already tried and not kept there is not tried again."""
-    lo = steps_before[max(k - LOCAL_SLIPS, 0)]
-    hi = steps_before[min(k + LOCAL_SLIPS, len(steps_before) - 1)]
-    return (int(lo), int(hi)) + tuple(int(s) for s in steps_after if lo <= s <= hi)
+def _local(before, after) -> tuple:
+    """Key of the change from trigger steps ``before`` to ``after``: the triggers it
+    changed and ``LOCAL_SLIPS`` unchanged ones either side (the run's ends where there
+    are fewer). The same change reached from another flagged slip has the same key, and
+    so has a change tried before a change kept further along the run."""
+    before = [int(t) for t in before]
+    changed = sorted(set(before) ^ {int(t) for t in after})
+    if not changed:
+        return ()
+    lo_i = int(np.searchsorted(before, changed[0])) - LOCAL_SLIPS
+    hi_i = int(np.searchsorted(before, changed[-1], side="right")) + LOCAL_SLIPS - 1
+    lo = before[lo_i] if lo_i >= 0 else -np.inf
+    hi = before[hi_i] if hi_i < len(before) else np.inf
+    return (lo, hi) + tuple(int(t) for t in after if lo <= t <= hi)
 
 
 def _misfit_triggers(prob, best, model, values, opts, say):
@@ -333,35 +353,39 @@ def _misfit_triggers(prob, best, model, values, opts, say):
     early and one spurious slip. The fit then bent μmin 6 % low and A 20 % high (−9.8 σ)
     at reduced χ² 1.10; with the true sequence χ² fell by 575 and every estimate came
     within 3 %. Each of those errors left trigger residuals of 3 to 12.5 at or after it,
-    where a well-placed trigger stays within ±√3.
+    where a well-placed trigger stays within ±√3 (centred, :func:`_centered`).
 
     So, worst first, at each slip whose trigger residual exceeds :data:`TRIGGER_GATE`,
     the local changes of :func:`_moves` are each solved for :data:`TRIAL_ITER`
     iterations; the best is kept when it lowers χ² − n_obs by more than 1, solved to
     convergence, and the residuals read again. Measured on seed 28 from the fitted
     sequence: the insertion gained 473, moving either late slip 33-34, the early pair 30;
-    single moves in the wrong direction lost 57 to 106. At most
-    :data:`MAX_SEQUENCE_TRIALS` trials. Returns (problem, solution, counts by kind)."""
+    single moves in the wrong direction lost 57 to 106. At most ``opts.sequence_trials``
+    trials (0: the pass is off). Errors that leave the slip's own trigger and the next
+    within the gate are out of its reach, as is a run's first slip (it has no trigger
+    residual). Returns (problem, solution, counts by kind)."""
     from .missed import best_split
 
     counts = dict(moved=0, inserted=0, removed=0)
+    budget = int(opts.sequence_trials)
     r_now = prob.residuals(best["w"])
-    if not _flagged(prob, r_now):
+    gate = _centered(prob, best["w"], r_now)
+    if budget <= 0 or not _flagged(prob, gate):
         return prob, best, counts
     now = _excess(prob, r_now)
     short = replace(opts, max_iter=TRIAL_ITER)
     base_its, base_wall = best["iterations"], best["wall_s"]
     its, wall, trials = 0, 0.0, 0
-    tried: set = set()  # (run, local key) of the changes tried and not kept
+    tried: set = set()  # (run, local key) of the changes tried, and the undoing of those kept
     say(f"mode sequence: trying local changes where slip triggers misfit (|residual| > {TRIGGER_GATE:g})")
-    while trials < MAX_SEQUENCE_TRIALS:
+    while trials < budget:
         target = None
-        for _, i, k in _flagged(prob, r_now):
+        for _, i, k in _flagged(prob, gate):
             run = prob.runs[i]
             e_prev = int(np.nonzero(prob.ev_run == i)[0][k - 1])
             split = best_split(prob, best["w"], e_prev)
             moves = [m for m in _moves(run.trigger_steps, k, split and split[1], int(run.events.steps.max()))
-                     if (i, _local(run.trigger_steps, k, m[1])) not in tried]
+                     if (i, _local(run.trigger_steps, m[1])) not in tried]
             if moves:
                 target = (i, k, moves)
                 break
@@ -371,16 +395,16 @@ def _misfit_triggers(prob, best, model, values, opts, say):
         before = prob.runs[i].trigger_steps
         name, at = prob.runs[i].name, int(before[k])
         results = []
-        for label, steps, kind, n in moves[: MAX_SEQUENCE_TRIALS - trials]:
+        for label, steps, kind, n in moves[: budget - trials]:
             trials += 1
-            tried.add((i, _local(before, k, steps)))
+            tried.add((i, _local(before, steps)))
             trial, sol, f = _trial(prob, best["w"], {i: np.array(steps, int)}, model, values, short, say)
             its, wall = its + sol["iterations"], wall + sol["wall_s"]
             if trial is not None:
                 results.append((f, label, kind, n, trial, sol))
         if not results:
             continue
-        f, label, kind, n, trial, sol = min(results, key=lambda c: c[0])
+        f, label, kind, n, trial, sol = min(results, key=lambda c: c[0] if np.isfinite(c[0]) else np.inf)
         if not f < now - 1.0:
             say(f"  {name}: no change at step {at} lowers chi2 (best: {label}, chi2 - n_obs {now:.1f} -> {f:.1f})")
             continue
@@ -388,10 +412,11 @@ def _misfit_triggers(prob, best, model, values, opts, say):
         counts[kind] += n
         prob, best, it_full, s_full = _keep(trial, sol, opts)
         its, wall = its + it_full, wall + s_full
+        tried.add((i, _local(prob.runs[i].trigger_steps, before)))  # (its undoing)
         r_now = prob.residuals(best["w"])
-        now = _excess(prob, r_now)
-    left = len(_flagged(prob, r_now))
-    if trials >= MAX_SEQUENCE_TRIALS and left:
-        say(f"  stopped after {trials} trials; {left} slip trigger(s) still misfit")
+        now, gate = _excess(prob, r_now), _centered(prob, best["w"], r_now)
+    left = len(_flagged(prob, gate))
+    say(f"  {trials} trial(s); " + (f"{left} slip trigger(s) still misfit" if left else "every trigger fits")
+        + (" (trial budget spent)" if left and trials >= budget else ""))
     best["iterations"], best["wall_s"] = base_its + its, base_wall + wall
     return prob, best, counts

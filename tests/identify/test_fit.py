@@ -306,7 +306,8 @@ def test_trigger_misfit_reads_the_slip_and_the_next_two():
 def test_an_ambiguous_trigger_is_tried_at_its_other_step(small_traces, margin, monkeypatch):
     """A slip detected a step late: marked ambiguous, the fit tries the true step against
     the whole model and keeps it (χ² falls); not marked, it is not tried there. (The
-    mode sequence, switched off here, fixes this simple case itself.)"""
+    mode sequence and the misfit-trigger pass, switched off here, fix this simple case
+    themselves.)"""
     import importlib
 
     from identify.events import extract_events
@@ -322,7 +323,7 @@ def test_an_ambiguous_trigger_is_tried_at_its_other_step(small_traces, margin, m
     # two parameters from the truth keep it quick; the pass is the same for four
     res = fit([late, evs[1]], progress=said.append, options=FitOptions(
         fixed={"v_stick": V_STICK}, free=("mu_min", "A"), start={"mu_min": truth["mu_min"], "A": truth["A"]},
-        staged_start=False))
+        staged_start=False, sequence_trials=0))
     tried = [m for m in said if "tried at" in m]
     steps = res.problem.runs[0].trigger_steps
     if np.isfinite(margin):
@@ -343,8 +344,8 @@ def test_the_changes_tried_where_a_trigger_misfits():
     assert m["slip inserted at step 17"] == ([10, 15, 17, 20, 25], "inserted", 1)
     assert m["slip at step 20 removed"] == ([10, 15, 25], "removed", 1)
     assert len(m) == 10  # two singles and two pairs each way, the insertion, the removal
-    # never two slips at one step, nor a slip past the run's last step
-    tight = {label for label, *_ in _moves(np.array([10, 11, 20]), 1, 13, 20)}
+    # never two slips at one step, nor a slip at or past the run's last step (21 here)
+    tight = {label for label, *_ in _moves(np.array([10, 11, 20]), 1, 13, 21)}
     assert "slip at step 11 to 10" not in tight and "slip at step 10 to 11" not in tight
     assert "slips at steps 11, 20 to 12, 21" not in tight and "slips at steps 11, 20 to 10, 19" not in tight
     assert "slip inserted at step 13" not in tight  # not between slips 0 and 1
@@ -352,17 +353,45 @@ def test_the_changes_tried_where_a_trigger_misfits():
                      "slips at steps 10, 11 to 11, 12", "slip at step 11 removed"}
 
 
-def test_a_change_kept_elsewhere_leaves_a_tried_one_untried():
+def test_a_change_has_one_key_however_it_is_reached():
+    """The pass does not try a change twice: its key is the triggers it changed and
+    their unchanged neighbours, the same from either flagged slip and after a change
+    kept further along the run; a change near it gives another key."""
     from identify.sequence import LOCAL_SLIPS, _local
 
     T = [10 * j for j in range(1, 21)]
-    k = 10  # step 110
-    change = [s + 1 if s == 110 else s for s in T]
-    key = _local(T, k, change)
-    far = [s for s in T if s != 30]  # a slip removed well outside the reach, before k
-    assert _local(far, k - 1, [s + 1 if s == 110 else s for s in far]) == key
-    near = [s + 1 if s == 110 - 10 * (LOCAL_SLIPS - 1) else s for s in T]
-    assert _local(near, k, [s + 1 if s == 110 else s for s in near]) != key
+    shift = lambda steps: [s + 1 if s == 110 else s for s in steps]  # noqa: E731
+    key = _local(T, shift(T))
+    far = [s for s in T if s != 30]  # a slip removed well outside the reach
+    assert _local(far, shift(far)) == key
+    near = [s + 1 if s == 110 - 10 * LOCAL_SLIPS else s for s in T]
+    assert _local(near, shift(near)) != key
+    # at the run's end: moving the last slip past it and removing it are different changes
+    assert _local(T, T[:-1] + [201]) != _local(T, T[:-1])
+    assert _local(T, T) == ()
+
+
+def test_trigger_residuals_are_gated_on_the_position_in_the_interval():
+    """A run's phase φ shifts its trigger residuals √12·(s − φ); the gate reads them
+    against mid-interval, √12·(s − ½), so that a well-placed trigger of a run at φ = 0.71
+    (|r| up to 2.46) is not flagged, and one outside its interval is."""
+    from types import SimpleNamespace
+
+    from identify.sequence import _centered, _flagged
+
+    prob = SimpleNamespace(E=4, ev_run=np.array([0, 0, 1, 1]), ev_step=np.array([10, 20, 10, 20.0]),
+                           ev_next=np.array([1, 3]), residual_groups=lambda: {"triggers": (0, 4)},
+                           i_phi=0, n_phase=2, phase_of_run={0: 0, 1: 1},
+                           runs=[SimpleNamespace(trigger_steps=np.array([10, 20]))] * 2)
+    w = np.array([0.71, 0.5])
+    s = np.array([0.0, 0.0])  # both crossings at the start of their interval: well placed
+    r = np.r_[np.sqrt(12) * (s - w), 0.0, 0.0]
+    assert abs(r[0]) > 2.4 and _flagged(prob, r)  # read against φ: wrongly flagged
+    c = _centered(prob, w, r)
+    np.testing.assert_allclose(c[:2], np.sqrt(12) * (s - 0.5))
+    assert _flagged(prob, c) == []
+    c_out = _centered(prob, w, np.r_[np.sqrt(12) * (np.array([1.2, 0.5]) - w), 0.0, 0.0])
+    assert _flagged(prob, c_out) == [(pytest.approx(np.sqrt(12) * 0.7), 0, 1)]
 
 
 def test_flagged_triggers_worst_first():
@@ -402,12 +431,13 @@ def _detected_at(ev, triggers):
     return dataclasses.replace(ev, plateau_of_frame=pof, slips=slips, plateaus=plateaus)
 
 
-@pytest.mark.parametrize("error", ["late", "spurious", "merged"])
-def test_a_wrong_slip_is_repaired_where_its_trigger_misfits(small_traces, error, monkeypatch):
+@pytest.mark.parametrize("error, trials", [("late", 64), ("spurious", 64), ("merged", 64), ("late", 0)])
+def test_a_wrong_slip_is_repaired_where_its_trigger_misfits(small_traces, error, trials, monkeypatch):
     """A slip detected a step late (and not marked ambiguous), a slip the detector made
     up in the middle of a plateau, two slips merged into one: with the local scores and
     the missed-slip scan switched off, the misfit-trigger pass finds each where the
-    model's triggers misfit and puts the detector's true sequence back."""
+    model's triggers misfit and puts the detector's true sequence back; with no trials
+    (``sequence_trials=0``) the wrong sequence stays."""
     import importlib
 
     from identify.events import extract_events
@@ -424,9 +454,12 @@ def test_a_wrong_slip_is_repaired_where_its_trigger_misfits(small_traces, error,
     truth = parameter_set("FOTAS")
     res = fit([evs[0], _detected_at(evs[1], wrong)], progress=said.append, options=FitOptions(
         fixed={"v_stick": V_STICK}, free=("mu_min", "A"), start={"mu_min": truth["mu_min"], "A": truth["A"]},
-        staged_start=False))
-    kept = [m for m in said if m.endswith(", kept")]
-    assert kept, said
+        staged_start=False, sequence_trials=trials))
+    if not trials:
+        np.testing.assert_array_equal(res.problem.runs[1].trigger_steps, wrong)
+        return
+    name = evs[1].trace.name
+    assert [m for m in said if m.startswith(f"  {name}: ") and m.endswith(", kept")], said
     np.testing.assert_array_equal(res.problem.runs[1].trigger_steps, true)
     key = {"late": "triggers_moved", "spurious": "slips_removed", "merged": "slips_inserted"}[error]
     assert res.solver[key] >= 1
