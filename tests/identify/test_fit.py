@@ -344,8 +344,9 @@ def test_the_changes_tried_where_a_trigger_misfits():
     assert m["slip inserted at step 17"] == ([10, 15, 17, 20, 25], "inserted", 1)
     assert m["slip at step 20 removed"] == ([10, 15, 25], "removed", 1)
     assert len(m) == 10  # two singles and two pairs each way, the insertion, the removal
-    # never two slips at one step, nor a slip at or past the run's last step (21 here)
-    tight = {label for label, *_ in _moves(np.array([10, 11, 20]), 1, 13, 21)}
+    # never two slips at one step, nor a slip past the run's last step (20 here, where the
+    # detector may have put the run's last slip: changes that keep it there are tried)
+    tight = {label for label, *_ in _moves(np.array([10, 11, 20]), 1, 13, 20)}
     assert "slip at step 11 to 10" not in tight and "slip at step 10 to 11" not in tight
     assert "slips at steps 11, 20 to 12, 21" not in tight and "slips at steps 11, 20 to 10, 19" not in tight
     assert "slip inserted at step 13" not in tight  # not between slips 0 and 1
@@ -371,29 +372,6 @@ def test_a_change_has_one_key_however_it_is_reached():
     assert _local(T, T) == ()
 
 
-def test_trigger_residuals_are_gated_on_the_position_in_the_interval():
-    """A run's phase φ shifts its trigger residuals √12·(s − φ); the gate reads them
-    against mid-interval, √12·(s − ½), so that a well-placed trigger of a run at φ = 0.71
-    (|r| up to 2.46) is not flagged, and one outside its interval is."""
-    from types import SimpleNamespace
-
-    from identify.sequence import _centered, _flagged
-
-    prob = SimpleNamespace(E=4, ev_run=np.array([0, 0, 1, 1]), ev_step=np.array([10, 20, 10, 20.0]),
-                           ev_next=np.array([1, 3]), residual_groups=lambda: {"triggers": (0, 4)},
-                           i_phi=0, n_phase=2, phase_of_run={0: 0, 1: 1},
-                           runs=[SimpleNamespace(trigger_steps=np.array([10, 20]))] * 2)
-    w = np.array([0.71, 0.5])
-    s = np.array([0.0, 0.0])  # both crossings at the start of their interval: well placed
-    r = np.r_[np.sqrt(12) * (s - w), 0.0, 0.0]
-    assert abs(r[0]) > 2.4 and _flagged(prob, r)  # read against φ: wrongly flagged
-    c = _centered(prob, w, r)
-    np.testing.assert_allclose(c[:2], np.sqrt(12) * (s - 0.5))
-    assert _flagged(prob, c) == []
-    c_out = _centered(prob, w, np.r_[np.sqrt(12) * (np.array([1.2, 0.5]) - w), 0.0, 0.0])
-    assert _flagged(prob, c_out) == [(pytest.approx(np.sqrt(12) * 0.7), 0, 1)]
-
-
 def test_flagged_triggers_worst_first():
     from types import SimpleNamespace
 
@@ -407,6 +385,24 @@ def test_flagged_triggers_worst_first():
     r = np.zeros(8)
     r[3 + 1], r[3 + 3], r[3 + 4] = -2.5, 1.9, np.nan  # events 2, 4 and 6
     assert _flagged(prob, r) == [(np.inf, 1, 1), (2.5, 0, 2)]
+
+
+def test_a_kept_change_ends_on_its_full_solve():
+    """The full solve after a kept change wins even at a higher ½χ² than the trial's
+    short solve (whose point may violate the constraints); only a failed one does not."""
+    from types import SimpleNamespace
+
+    from identify.sequence import _keep
+
+    opts = FitOptions(fixed={"v_stick": V_STICK})
+    short = dict(w=np.zeros(2), f=1.0, status="Maximum_Iterations_Exceeded", success=False, iterations=4, wall_s=0.1)
+    full = dict(w=np.ones(2), f=1.5, status="Solve_Succeeded", success=True, iterations=9, wall_s=0.3)
+    trial = SimpleNamespace(opts=None, solve=lambda w: dict(full))
+    prob, best, its, wall = _keep(trial, short, opts)
+    assert best["status"] == "Solve_Succeeded" and best["f"] == 1.5 and (its, wall) == (9, 0.3)
+    assert prob.opts is opts  # the full problem's options, not the trial's
+    failed = SimpleNamespace(opts=None, solve=lambda w: dict(full, f=np.inf))
+    assert _keep(failed, short, opts)[1]["f"] == 1.0
 
 
 def _detected_at(ev, triggers):
