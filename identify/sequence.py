@@ -378,8 +378,9 @@ def _misfit_triggers(prob, best, model, values, opts, say):
 
     So, worst first, at each slip whose trigger residual exceeds :data:`TRIGGER_GATE`,
     the local changes of :func:`_moves` are each solved for :data:`SCREEN_ITER`
-    iteration, the :data:`SCREEN_KEEP` best up to :data:`TRIAL_ITER`; the best is kept when it lowers χ² − n_obs by more than 1, solved to
-    convergence, and the residuals read again. Measured on seed 28 from the fitted
+    iteration and the :data:`SCREEN_KEEP` best on to :data:`TRIAL_ITER`; the best is
+    kept when it lowers χ² − n_obs by more than 1, solved to convergence, and the
+    residuals read again. Measured on seed 28 from the fitted
     sequence: the insertion gained 473, moving either late slip 33-34, the early pair 30;
     single moves in the wrong direction lost 57 to 106. At most ``opts.sequence_trials``
     trials (0: the pass is off). Errors that leave the slip's own trigger and the next
