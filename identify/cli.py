@@ -211,9 +211,9 @@ def _add_fit_arguments(p, json_required: bool):
     p.add_argument("--free-offset", action="store_true", help="estimate a per-run elongation zero offset")
     p.add_argument("--multistart", type=int, default=0, help="extra random starts (pyPESTO-style summary)")
     p.add_argument("--seed", type=int, default=None, help="seed of the multistart")
-    p.add_argument("--sequence-trials", type=int, default=64, metavar="N",
+    p.add_argument("--sequence-trials", type=int, default=None, metavar="N",
                    help="trials of the last mode-sequence repair, where the model's slip triggers "
-                        "misfit (default 64; 0 turns it off)")
+                        "misfit (default: FitOptions.sequence_trials, 64; 0 turns it off)")
     p.add_argument("--solver", default="gauss-newton", choices=("gauss-newton", "ipopt"))
     p.add_argument("--profile", default=None, metavar="NAMES",
                    help="comma-separated free parameters to profile (likelihood profiles)")
@@ -248,7 +248,8 @@ def _fit_options(args):
     return FitOptions(law=args.law, free=free, fixed=_parse_params(args.fix, "--fix"),
                       bounds=_parse_bounds(args.bound), start=_parse_params(args.start, "--start"),
                       free_offset=args.free_offset, multistart=args.multistart, seed=args.seed,
-                      solver=args.solver, sequence_trials=args.sequence_trials)
+                      solver=args.solver,
+                      **({} if args.sequence_trials is None else {"sequence_trials": args.sequence_trials}))
 
 
 def _run_fit(args, data, true_values=None) -> int:
@@ -306,7 +307,7 @@ def _cmd_demo(args) -> int:
     fit_args = argparse.Namespace(
         coating=args.coating, law="exponential", free=None, fix=["v_stick=1e-5"], bound=None, start=None,
         free_offset=False, multistart=0, seed=None, solver="gauss-newton", profile=None,
-        sequence_trials=64, json=str(out / "fit.json"), plots=str(out / "figures"))
+        sequence_trials=None, json=str(out / "fit.json"), plots=str(out / "figures"))
     print(f"demo: fitting {data} (synthetic, made with v_stick = 1e-5 m/s; true values from the "
           f"{args.coating} preset shown beside the estimates)", file=sys.stderr)
     truth = parameter_set(args.coating)

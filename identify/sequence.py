@@ -183,20 +183,23 @@ def _trial(prob, w, changes: dict, model, values, short, say):
     return trial, sol, f
 
 
+def _solve_again(trial, w, opts) -> dict:
+    """The trial's problem solved from ``w`` under ``opts`` (its own were a trial's)."""
+    trial.opts = opts
+    if opts.solver == "ipopt":
+        trial.build()  # (Ipopt's iteration limit is built into its solver object)
+    return trial.solve(w)
+
+
 def _continue(trial, sol, opts, iters: int):
     """A screened trial solved ``iters`` more iterations from where it stopped:
-    (solution, excess χ²), or the screened solution and inf if that fails."""
-    trial.opts = replace(opts, max_iter=iters)
+    (that solve, excess χ²), or (None, inf) if it fails."""
     try:
-        if opts.solver == "ipopt":
-            trial.build()
-        more = trial.solve(sol["w"])
+        more = _solve_again(trial, sol["w"], replace(opts, max_iter=iters))
         f = _excess(trial, trial.residuals(more["w"])) if np.isfinite(more["f"]) else np.inf
     except Exception as err:
         log.info("continuing a mode-sequence trial failed: %s", err)
-        return sol, np.inf
-    more["iterations"] += sol["iterations"]
-    more["wall_s"] += sol["wall_s"]
+        return None, np.inf
     return more, f
 
 
@@ -205,11 +208,8 @@ def _keep(trial, sol, opts):
     4-iteration point, the next trial's own extra iterations would count as its gain.
     Returns (problem, solution, iterations, wall s) of that solve."""
     prob, best = trial, dict(sol, success=False)
-    prob.opts = opts
-    if opts.solver == "ipopt":
-        prob.build()  # (Ipopt's iteration limit is built into its solver object)
     try:
-        full = prob.solve(best["w"])
+        full = _solve_again(prob, best["w"], opts)
     except Exception as err:  # the trial's solution stands
         log.info("solve after a kept mode-sequence move failed: %s", err)
         return prob, best, 0, 0.0
@@ -391,9 +391,10 @@ def _misfit_triggers(prob, best, model, values, opts, say):
     counts = dict(moved=0, inserted=0, removed=0)
     budget = int(opts.sequence_trials)
     r_now = prob.residuals(best["w"])
-    if budget <= 0 or not _flagged(prob, r_now):
+    flagged = _flagged(prob, r_now) if budget > 0 else []
+    if not flagged:
         return prob, best, counts
-    log.info("triggers that misfit (|r|, run, slip): %s", _flagged(prob, r_now))
+    log.info("triggers that misfit (|r|, run, slip): %s", flagged)
     now = _excess(prob, r_now)
     screen = replace(opts, max_iter=SCREEN_ITER)
     base_its, base_wall = best["iterations"], best["wall_s"]
@@ -429,9 +430,9 @@ def _misfit_triggers(prob, best, model, values, opts, say):
         rank = lambda c: c[0] if np.isfinite(c[0]) else np.inf  # noqa: E731
         for c in sorted(results, key=rank)[:SCREEN_KEEP]:
             if np.isfinite(c[0]):
-                sol, f = _continue(c[4], c[5], opts, TRIAL_ITER - SCREEN_ITER)
-                its, wall = its + sol["iterations"] - c[5]["iterations"], wall + sol["wall_s"] - c[5]["wall_s"]
-                c[0], c[5] = f, sol  # (a lower χ² after one iteration may not be feasible)
+                more, c[0] = _continue(c[4], c[5], opts, TRIAL_ITER - SCREEN_ITER)
+                if more is not None:  # (its χ², even if higher: one iteration's may not be feasible)
+                    its, wall, c[5] = its + more["iterations"], wall + more["wall_s"], more
         f, label, kind, n, trial, sol = min(results, key=rank)
         if not f < now - 1.0:
             say(f"  {name}: no change at step {at} lowers chi2 (best: {label}, chi2 - n_obs {now:.1f} -> {f:.1f})")

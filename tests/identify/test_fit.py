@@ -644,6 +644,12 @@ def test_cli_fit_nothing_usable_exits_2(tmp_path, capsys):
     assert code == 2 and "error: no run could be used" in err and "Traceback" not in err
 
 
+def test_cli_fit_negative_sequence_trials_exits_2(tmp_path, capsys):
+    code = cli_main(["fit", str(tmp_path), "--sequence-trials", "-1", "--json", str(tmp_path / "o.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and "sequence_trials" in err and "Traceback" not in err
+
+
 def test_cli_fit_unknown_parameter_exits_2(tmp_path, capsys):
     code = cli_main(["fit", str(tmp_path), "--free", "mu_max,bogus", "--json", str(tmp_path / "o.json")])
     assert code == 2 and "bogus" in capsys.readouterr().err
