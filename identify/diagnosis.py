@@ -188,7 +188,7 @@ class DiagnosisResult:
         for k, rnd in enumerate(self.rounds):
             L.append(f"[[Candidates, round {k + 1}]]" + (f" (after adding {', '.join(self.effects[:k])})" if k else ""))
             L.append(f"    {'effect':24s} {'Δnll':>9s} {'p':>9s} {'ΔAIC':>9s} {'ΔBIC':>9s} {'gap µm':>15s} "
-                     f"{'held-out µm':>15s}  note")
+                     f"{'held-out µm':>15s} {'Δnll h-o':>9s}  note")
             for c in rnd:
                 if c.get("effect") is None:
                     continue
@@ -199,7 +199,8 @@ class DiagnosisResult:
                 L.append(f"    {c['effect']:24s} {c['delta_nll']:9.2f} {p if p is not None else float('nan'):9.2g} "
                          f"{c['delta_aic']:9.1f} {c['delta_bic']:9.1f} "
                          f"{c['gap_before_um']:6.3f}->{c['gap_after_um']:<7.3f} "
-                         f"{c['heldout_gap_before_um']:6.3f}->{c['heldout_gap_after_um']:<7.3f}  {c['note']}")
+                         f"{c['heldout_gap_before_um']:6.3f}->{c['heldout_gap_after_um']:<7.3f} "
+                         f"{c.get('heldout_delta_nll', float('nan')):9.2f}  {c['note']}")
         for n in self.notes:
             L.append(f"    note: {n}")
         return "\n".join(L)
@@ -244,7 +245,7 @@ _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delt
               "gap_before_um", "gap_after_um", "heldout_gap_before_um", "heldout_gap_after_um", "significant",
               "named", "note", "ok", "status", "iterations", "wall_s", "law", "r2_with_model",
               "closed_fraction", "estimates", "rounds", "heldout_refitted_folds",
-              "heldout_unverified_folds", "heldout_error")
+              "heldout_unverified_folds", "heldout_error", "heldout_delta_nll")
 
 
 def _cand_json(c: dict) -> dict:
@@ -320,8 +321,10 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
 
     # every parameter any candidate may free (another law's too), at the baseline's values
     values0 = {**parameter_set(baseline.coating), **prob.values, **baseline.values}
+    r0 = prob.residuals(w)
     current = dict(values=values0, free=tuple(prob.theta.names), law=prob.law.name,
-                   w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta)
+                   w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta,
+                   chi2=float(r0 @ r0) + prob.chi2_constant(), n_eff=prob.n_effective())
     own, closer = (executor, None) if executor is not None else make_executor(opts.workers, opts.dask)
     threads = 1 if (opts.workers > 1 or opts.dask) else max(int(fopts.threads), 1)
     rounds, effects, confounded, notes = [], [], [], []
@@ -371,7 +374,8 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
             remaining = [c["effect"] for c in scored if c.get("significant") and c["effect"] != chosen["effect"]]
             eff = get_effect(chosen["effect"])
             current = dict(values=chosen["values"], free=tuple(chosen["free"]), law=chosen["law"], w=chosen["w"],
-                           ev_M=chosen["ev_M"], n_theta=len(chosen["free"]),
+                           ev_M=chosen["ev_M"], n_theta=len(chosen["free"]), chi2=chosen["chi2"],
+                           n_eff=chosen["n_eff"],
                            bounds={**current.get("bounds", {}), **dict(eff.bounds)})
             say(f"added {chosen['effect']} ({', '.join(eff.parameters) or eff.law}); trying the rest again")
             if len(effects) >= opts.max_effects:
@@ -443,7 +447,8 @@ def _tasks(ids, current, runs, fopts, folds, opts, threads, where_hint):
     """Tasks for the current model itself and every applicable candidate."""
     tail = np.asarray(current["w"])[current["n_theta"]:]
     common = dict(runs=runs, values=current["values"], free=current["free"], w_tail=tail, ev_M=current["ev_M"],
-                  options=fopts, folds=folds, max_iter=opts.max_iter, threads=threads)
+                  options=fopts, folds=folds, max_iter=opts.max_iter, threads=threads,
+                  null_chi2=current.get("chi2"), null_n_eff=current.get("n_eff"))
     added = dict(current.get("bounds", {}))  # bounds of the effects already added
     tasks = [CandidateTask(effect=None, law=current["law"], bounds=added, **common)]
     skipped = []
@@ -528,6 +533,7 @@ def _score(results, base, opts, n_cand) -> list:
         c["heldout_refitted_folds"] = c["heldout"].get("refitted_folds")
         c["heldout_unverified_folds"] = c["heldout"].get("unverified_folds")
         c["heldout_error"] = c["heldout"].get("error")
+        c["heldout_delta_nll"] = _heldout_dnll(base["heldout"], c["heldout"])
         conf = c.get("confounding") or {}
         r2 = max((v.get("r2", 0.0) for v in conf.values()), default=0.0)
         if any(v.get("confounded") for v in conf.values()):
@@ -555,11 +561,23 @@ def _score(results, base, opts, n_cand) -> list:
         c["named"] = False
         c["closed_fraction"] = _closed_fraction(c)
         c["note"] = c["estimate_text"]
+        if c.get("heldout_unverified_folds") and not c["significant"]:
+            c["note"] += (f" (held-out gap: {c['heldout_unverified_folds']} fold(s) from the linear "
+                          "leave-out step, which the model did not confirm there)")
         if c.get("worse"):
             c["note"] = "the refit ended worse than the current model (a local solution): no evidence; " + \
                 c["estimate_text"]
         out.append(c)
     return out
+
+
+def _heldout_dnll(before: dict, after: dict) -> float:
+    """½ the fall of the held-out χ² (NaN unless both cover the same rows): the
+    likelihood gain on runs the fit did not see, every row in its own noise units."""
+    a, b = before.get("chi2"), after.get("chi2")
+    if a is None or b is None or before.get("n_rows") != after.get("n_rows"):
+        return float("nan")
+    return float(0.5 * (a - b))
 
 
 def _wald(c, eff) -> float:

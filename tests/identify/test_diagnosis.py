@@ -9,7 +9,7 @@ import pytest
 import identify
 from identify.cli import main
 from identify.diagnosis import DiagnosisOptions, diagnose
-from identify.features import feature_values, gap
+from identify.features import Layout, feature_values, gap
 from identify.heldout import exact_fold, folds_of, heldout_residuals
 from identify.where import misfit_sigma, where
 
@@ -144,6 +144,37 @@ def test_held_out_runs_of_a_model_far_from_the_data_are_refitted(small_fit):
     assert np.sqrt(np.mean((ho.residuals[rows] - r_good) ** 2)) < 0.2
 
 
+def test_held_out_fold_left_linear_when_no_refit_is_asked(small_fit):
+    """refit=False (candidates no test could name): the same unconfirmed fold keeps its
+    linear prediction, listed as unverified, and costs no solve."""
+    prob, w = small_fit.problem, small_fit.w
+    far = w.copy()
+    far[: prob.n_theta] = prob.theta.to_scaled({**small_fit.values, "mu_max": 0.8 * small_fit.values["mu_max"]})
+    ho = heldout_residuals(prob, far, [[3]], refit=False)
+    assert ho.refitted == [] and ho.unverified == [[3]]
+    assert np.isfinite(ho.residuals).sum() == int(np.isin(Layout.of(prob).row_run, [3]).sum())
+
+
+def test_only_candidates_that_could_be_named_get_their_folds_refitted():
+    from identify.candidates import SCREEN_P, CandidateTask, _could_be_named
+
+    t = CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=(), null_chi2=1000.0,
+                      null_n_eff=10)
+    assert _could_be_named(t, 1000.0 - 10.0, 11)  # Δnll 5, one parameter: p = 0.0016
+    assert not _could_be_named(t, 1000.0 - 1.0, 11)  # Δnll 0.5: p = 0.32
+    assert not _could_be_named(t, 1001.0, 11)  # worse than the current model
+    from scipy import stats
+
+    edge = stats.chi2.isf(SCREEN_P, 1)
+    assert _could_be_named(t, 1000.0 - edge - 0.01, 11) and not _could_be_named(t, 1000.0 - edge + 0.01, 11)
+    law = CandidateTask(effect="aging_logistic", runs=[], law="logistic", values={}, free=(), null_chi2=1000.0,
+                        null_n_eff=10)
+    assert _could_be_named(law, 990.0, 11) and not _could_be_named(law, 999.0, 11)  # ΔAIC −8 / +1
+    # the current model itself, and a task that does not know the current χ², always are
+    assert _could_be_named(CandidateTask(effect=None, runs=[], law="exponential", values={}, free=()), 5e3, 3)
+    assert _could_be_named(CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=()), 5e3, 3)
+
+
 def test_diagnosis_of_model_made_data_is_adequate(small_fit, tmp_path):
     res = diagnose(None, baseline=small_fit, options=DiagnosisOptions(effects=("drift", "step_size")))
     assert res.verdict == "adequate" and res.effects == []
@@ -155,6 +186,7 @@ def test_diagnosis_of_model_made_data_is_adequate(small_fit, tmp_path):
                     "gap_after_um", "heldout_gap_before_um", "heldout_gap_after_um"):
             assert key in c, key
         assert not c["significant"]
+        assert np.isfinite(c["heldout_delta_nll"])  # same rows as the current model's
     assert {m["feature"] for m in js["where"]} >= {"post_slip_level", "static_friction"}
     json.dumps(js)
     assert "[[Diagnosis]]" in res.report() and "verdict" in res.report()
