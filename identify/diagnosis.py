@@ -50,7 +50,8 @@ SAME_RESIDUALS = 0.9  # cosine of two candidates' residual changes above which t
 TIE_AIC = 10.0
 CONFOUNDED_R2 = 0.99
 WALD_Z = 5.0  # a candidate determined this many stderr off its null is not called confounded
-MIN_CLOSED = 0.3  # a named effect closes at least this share of the held-out gap above the noise
+MIN_CLOSED = 0.3  # a named effect closes at least this share of the gap (see _closes)
+HELDOUT_SHARE = 0.5  # ... and, judged by the likelihood, keeps this share of its gain held out
 
 
 @dataclass(frozen=True)
@@ -245,7 +246,8 @@ _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delt
               "gap_before_um", "gap_after_um", "heldout_gap_before_um", "heldout_gap_after_um", "significant",
               "named", "note", "ok", "status", "iterations", "wall_s", "law", "r2_with_model",
               "closed_fraction", "estimates", "rounds", "heldout_refitted_folds",
-              "heldout_unverified_folds", "heldout_error", "heldout_delta_nll")
+              "heldout_unverified_folds", "heldout_error", "heldout_delta_nll", "explained_share",
+              "closes")
 
 
 def _cand_json(c: dict) -> dict:
@@ -394,7 +396,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
     # is formally significant but closes little is the encoding's own misfit, not evidence.
     still = [c for c in (rounds[-1] if rounds else []) if c.get("significant") and not c.get("named")
              and c.get("effect") not in effects and not c.get("confounded_with")
-             and c.get("closed_fraction", 0.0) >= MIN_CLOSED]
+             and c.get("closes")]
     grouped = {e for g in confounded if g.get("closes") for e in g["effects"]}
     ratio = (final_res["heldout"]["gap_um"] / final_res["gap"]["noise_um"]
              if final_res and final_res.get("ok") and final_res["gap"]["noise_um"] > 0 else float("nan"))
@@ -560,10 +562,14 @@ def _score(results, base, opts, n_cand) -> list:
             if n in c["estimates"])
         c["named"] = False
         c["closed_fraction"] = _closed_fraction(c)
+        c["explained_share"] = _explained_share(c, base)
+        c["closes"] = _closes(c)
         c["note"] = c["estimate_text"]
-        if c.get("heldout_unverified_folds") and not c["significant"]:
+        if c["heldout_error"]:
+            c["note"] += f" (held-out gap not computed: {c['heldout_error']})"
+        elif c.get("heldout_unverified_folds"):
             c["note"] += (f" (held-out gap: {c['heldout_unverified_folds']} fold(s) from the linear "
-                          "leave-out step, which the model did not confirm there)")
+                          "leave-out step, which the model did not confirm there; their refit failed)")
         if c.get("worse"):
             c["note"] = "the refit ended worse than the current model (a local solution): no evidence; " + \
                 c["estimate_text"]
@@ -607,6 +613,30 @@ def _closed_fraction(c) -> float:
     return (before - after) / before if before > 0 else 0.0
 
 
+def _explained_share(c, base) -> float:
+    """Share of the current model's excess χ² (over its degrees of freedom) the candidate
+    removes on the fitted runs."""
+    excess = base["chi2"] - (base["n_obs"] - base["n_eff"])
+    return float(2 * c["delta_nll"] / excess) if excess > 0 else 0.0
+
+
+def _closes(c) -> bool:
+    """Whether a candidate closes a real part of the gap, not only a formal one: at least
+    MIN_CLOSED of the held-out µm gap above the noise; or, where that gap sits at the
+    encoding's own floor, at least MIN_CLOSED of the current model's excess χ² on the
+    fitted runs with at least HELDOUT_SHARE of that likelihood gain kept on the held-out
+    runs. Measured (velocity strengthening at A = 0.0045 against a baseline fixing A = 0,
+    the withheld-effect benchmark's 8 runs): p = 6e-54, Δnll 120 fitted and 142 held out,
+    yet the held-out µm gap went 20.5 → 21.2 nm (noise 15.0 nm): the µm gap pools the
+    features by their size in µm and sat at the 1.2–1.4× the encoding leaves on model-made
+    data, so the first test alone left the baseline 'adequate' with a 10 σ post-slip misfit."""
+    if c.get("closed_fraction", 0.0) >= MIN_CLOSED:
+        return True
+    ho = c.get("heldout_delta_nll", float("nan"))
+    return bool(c.get("explained_share", 0.0) >= MIN_CLOSED and np.isfinite(ho)
+                and ho >= HELDOUT_SHARE * c["delta_nll"])
+
+
 def _select(scored, base):
     """The candidate to add, and a confounded group when the best cannot be told apart."""
     ok = [c for c in scored if c.get("ok") and c.get("significant")]
@@ -640,16 +670,16 @@ def _try(best, others):
             c["note"] = "confounded with " + ", ".join(c["confounded_with"]) + "; " + c["estimate_text"]
         why = ("they change the residuals alike (cosine " + ", ".join(f"{cos:.2f}" for _, cos in ties)
                + ") and fit equally well (|ΔΔAIC| < 10)")
-        closes = any(c.get("closed_fraction", 0.0) >= MIN_CLOSED for c in [best] + [t for t, _ in ties])
+        closes = any(c.get("closes") for c in [best] + [t for t, _ in ties])
         return None, dict(effects=grp, why=why, closes=bool(closes))
     if not str(best.get("status", "")).startswith(("Solve_Succeeded", STALLED)):
         best["note"] = f"significant but its refit did not converge ({best['status']}); " + best["estimate_text"]
         return None, None
-    closed = _closed_fraction(best)
-    best["closed_fraction"] = closed
-    if not closed >= MIN_CLOSED:
-        best["note"] = (f"significant, but closes only {100 * max(closed, 0):.0f} % of the held-out gap above "
-                        f"the noise (needs {100 * MIN_CLOSED:.0f} %); " + best["estimate_text"])
+    if not best.get("closes"):
+        best["note"] = (f"significant, but closes only {100 * max(best['closed_fraction'], 0):.0f} % of the "
+                        f"held-out gap above the noise and {100 * max(best['explained_share'], 0):.0f} % of "
+                        f"the excess χ² (needs {100 * MIN_CLOSED:.0f} %, with half its gain held out: held-out "
+                        f"Δnll {best.get('heldout_delta_nll', float('nan')):.1f}); " + best["estimate_text"])
         return None, None
     best["note"] = "added; " + best["estimate_text"]
     return best, None
