@@ -247,7 +247,8 @@ _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delt
               "named", "note", "ok", "status", "iterations", "wall_s", "law", "r2_with_model",
               "closed_fraction", "estimates", "rounds", "heldout_refitted_folds",
               "heldout_unverified_folds", "heldout_error", "heldout_delta_nll", "explained_share",
-              "closes")
+              "closes", "gap_sigma_before", "gap_sigma_after", "heldout_gap_sigma_before",
+              "heldout_gap_sigma_after")
 
 
 def _cand_json(c: dict) -> dict:
@@ -536,6 +537,10 @@ def _score(results, base, opts, n_cand) -> list:
         c["heldout_unverified_folds"] = c["heldout"].get("unverified_folds")
         c["heldout_error"] = c["heldout"].get("error")
         c["heldout_delta_nll"] = _heldout_dnll(base["heldout"], c["heldout"])
+        # the same gaps in noise units (1: at the noise)
+        for key, before, after in (("gap_sigma", base["gap"], c["gap"]),
+                                   ("heldout_gap_sigma", base["heldout"], c["heldout"])):
+            c[key + "_before"], c[key + "_after"] = before.get("gap_sigma"), after.get("gap_sigma")
         conf = c.get("confounding") or {}
         r2 = max((v.get("r2", 0.0) for v in conf.values()), default=0.0)
         if any(v.get("confounded") for v in conf.values()):

@@ -187,6 +187,7 @@ def test_diagnosis_of_model_made_data_is_adequate(small_fit, tmp_path):
             assert key in c, key
         assert not c["significant"]
         assert np.isfinite(c["heldout_delta_nll"])  # same rows as the current model's
+        assert c["heldout_gap_sigma_before"] > 0.5 and c["gap_sigma_after"] > 0.5  # in noise units
     assert {m["feature"] for m in js["where"]} >= {"post_slip_level", "static_friction"}
     json.dumps(js)
     assert "[[Diagnosis]]" in res.report() and "verdict" in res.report()
