@@ -63,7 +63,13 @@ def case(eid, scale, quick, workers, seed=0):
                 final_heldout_um=res.final["heldout_gap_um"], final_gap_um=res.final["gap_um"],
                 noise_um=res.final["noise_um"], notes=res.notes,
                 significant=[(c["effect"], c.get("p_value"), round(c.get("closed_fraction") or 0, 2), c.get("note"))
-                             for c in res.candidates if c.get("significant")], where_top=[(m.feature, round(m.misfit_sigma, 1)) for m in res.where[:3]],
+                             for c in res.candidates if c.get("significant")],
+                where_top=[(m.feature, round(m.misfit_sigma, 1)) for m in res.where[:3]],
+                truth_heldout_delta_nll=truth.get("heldout_delta_nll"),
+                truth_explained_share=truth.get("explained_share"),
+                baseline={k: (res.baseline.solver if res.baseline is not None else {}).get(k) for k in ("status", "iterations", "wall_time_s",
+                                                                   "triggers_moved", "slips_inserted", "slips_removed")},
+                refit_s={c["effect"]: round(c.get("wall_s") or 0.0, 1) for c in res.candidates if c.get("effect")},
                 wall_s=time.perf_counter() - t0)
 
 
