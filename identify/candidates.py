@@ -191,9 +191,8 @@ def run_candidate(task: CandidateTask) -> dict:
                 if ho.unverified and not nameable:
                     # a linear prediction the model contradicts is no number to report
                     # beside the current model's refitted folds
-                    raise _NotComputed(f"{len(ho.unverified)} of {len(task.folds)} fold(s) where the linear "
-                                       "leave-out step does not hold, not refitted: no test could name this "
-                                       "candidate")
+                    raise _NotComputed(f"{len(ho.unverified)} of {len(task.folds)} fold(s) not confirmed by the "
+                                       "model and not refitted (no test could name this candidate)")
                 heldout = gap(feature_values(prob, w, ho.residuals))
                 # the held-out deviance: every row in its own noise units, as the fit
                 # weighs them (the µm gap weighs features by their size in µm)

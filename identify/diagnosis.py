@@ -571,7 +571,7 @@ def _score(results, base, opts, n_cand) -> list:
         c["closes"] = _closes(c)
         c["note"] = c["estimate_text"]
         if c["heldout_error"]:
-            c["note"] += f" (held-out gap not computed: {c['heldout_error']})"
+            c["note"] += f" (no held-out gap: {c['heldout_error']})"
         elif c.get("heldout_unverified_folds"):
             c["note"] += (f" (held-out gap: {c['heldout_unverified_folds']} fold(s) from the linear "
                           "leave-out step, which the model did not confirm there; their refit failed)")
