@@ -32,7 +32,7 @@ ROUND_GAIN = 1.0
 SCREEN_P = 0.1
 """Held-out folds the linear leave-out step does not hold for are refitted exactly only
 for a candidate a test could name: the diagnosis names a nested candidate only with p
-below α over the number of candidates (0.01 / 13 for the library) and ΔBIC < 0, a law
+below α over the number of candidates (0.01 / 13 or 14 for the library) and ΔBIC < 0, a law
 only with ΔAIC < −10; this screen (judged against the current model's χ²) is looser. For
 any other candidate the held-out gap is reported where the linear steps hold for every
 fold, and not computed (the reason given) where they do not: a linear prediction the
@@ -234,7 +234,7 @@ def _could_be_named(task: CandidateTask, chi2: float, n_eff: int) -> bool:
 
     dnll, dk = 0.5 * (task.null_chi2 - chi2), n_eff - task.null_n_eff
     if not np.isfinite(dnll):
-        return True
+        return False  # the refit is not scored at all
     if not get_effect(task.effect).nested:
         return -2 * dnll + 2 * dk < 0
     return bool(stats.chi2.sf(max(2 * dnll, 0.0), max(dk, 1)) < SCREEN_P)

@@ -343,7 +343,8 @@ def test_a_gap_at_the_encodings_floor_is_closed_by_the_likelihood():
     from identify.diagnosis import _closes
 
     vs = _cand(119.5, 142.5)
-    assert vs["closed_fraction"] <= 0 and vs["explained_share"] == pytest.approx(0.67, abs=0.01)
+    # excess χ² 356 over 10742 dof, floored at 3 chance σ (440)
+    assert vs["closed_fraction"] <= 0 and vs["explained_share"] == pytest.approx(239.0 / 439.7, abs=0.01)
     assert _closes(vs)
     assert not _closes(_cand(119.5, 30.0))  # an in-sample gain the held-out runs do not share
     assert not _closes(_cand(119.5, float("nan")))
@@ -380,3 +381,30 @@ def test_an_unconfirmed_held_out_gap_of_a_candidate_no_test_could_name_is_not_re
     tasks[1].null_chi2 = out["chi2"] + 100.0  # as if drift gained 50 likelihood units
     out = cand.run_candidate(tasks[1])
     assert asked[-1] is True and np.isfinite(out["heldout"]["gap_um"])
+
+
+def test_the_likelihood_test_is_wired_into_naming_and_says_what_failed():
+    from identify.diagnosis import _closes, _try
+
+    for c, named, why in ((_cand(119.5, 142.5), True, None), (_cand(119.5, 30.0), False, "keeps 30.0 of its"),
+                          (_cand(20.0, 20.0), False, "removes 9 % of the excess")):
+        c.update(effect="velocity_strengthening", dr=np.ones(3), delta_aic=-2 * c["delta_nll"] + 2,
+                 status="Solve_Succeeded", estimate_text="A = 0.0046")
+        c["closes"] = _closes(c)
+        chosen, group = _try(c, [])
+        assert (chosen is c) is named and group is None
+        if why:
+            assert why in c["note"], c["note"]
+
+
+def test_held_out_gain_and_excess_share_edge_cases():
+    from identify.diagnosis import _explained_share, _heldout_dnll
+
+    a = dict(chi2=900.0, n_rows=334)
+    assert _heldout_dnll(dict(chi2=1000.0, n_rows=334), a) == 50.0
+    assert np.isnan(_heldout_dnll(dict(chi2=1000.0, n_rows=330), a))  # not the same rows
+    assert np.isnan(_heldout_dnll(dict(chi2=1000.0, n_rows=334, unverified_folds=1), a))  # contradicted
+    assert np.isnan(_heldout_dnll(dict(gap_um=float("nan")), a))  # not computed
+    # a model at the noise: the share is of the chance spread, not of a near-zero excess
+    base = dict(chi2=10742.0 + 5.0, n_obs=10769, n_eff=27)
+    assert _explained_share(dict(delta_nll=6.0), base) == pytest.approx(12.0 / (3 * np.sqrt(2 * 10742)))
