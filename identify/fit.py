@@ -86,8 +86,9 @@ class FitOptions:
         Extra starts drawn around the first (log-normal, 30 %) with ``seed``.
     sequence_trials : int
         Trials of the last mode-sequence pass (:func:`identify.sequence._misfit_triggers`:
-        local changes where the model's triggers misfit, each a rebuild and a 4-iteration
-        re-solve of the whole problem); 0 turns it off. Data whose triggers fit pay none.
+        local changes where the model's triggers misfit, each a short re-solve of the
+        changed run alone with the parameters held; a kept change is solved jointly);
+        0 turns it off. Data whose triggers fit pay none.
     scale_covariance : bool
         Scale the model-based covariance by the reduced χ² (lmfit's default).
     free_phase : bool

@@ -387,6 +387,27 @@ def test_flagged_triggers_worst_first():
     assert _flagged(prob, r) == [(np.inf, 1, 1), (2.5, 0, 2)]
 
 
+def test_a_run_alone_has_the_whole_problems_rows(small_fit):
+    """A mode-sequence trial solves one run with the parameters held: at the fitted w
+    that run's residuals are the whole problem's rows for it, so the runs' excess χ²
+    add up to the whole problem's, and the run's variables map back where they were."""
+    from identify.sequence import _alone, _excess, _run_index
+
+    prob, w = small_fit.problem, small_fit.w
+    model = prob.model
+    total, rows = 0.0, []
+    for i in range(len(prob.runs)):
+        sub, w_sub = _alone(prob, w, i, model, prob.opts, None)
+        assert sub.n_theta == 0 and sub.n_w == len(w_sub)
+        r = sub.residuals(w_sub)
+        rows.append(r)
+        total += _excess(sub, r)
+        np.testing.assert_array_equal(w[_run_index(prob, i)], w_sub)
+    r_all = prob.residuals(w)
+    assert total == pytest.approx(_excess(prob, r_all), rel=1e-10)
+    np.testing.assert_allclose(np.sort(np.concatenate(rows)), np.sort(r_all), rtol=1e-10, atol=1e-12)
+
+
 def test_a_kept_change_ends_on_its_full_solve():
     """The full solve after a kept change wins even at a higher ½χ² than the trial's
     short solve (whose point may violate the constraints); only a failed one does not."""
