@@ -226,6 +226,23 @@ def _excess(p, r) -> float:
     return float(np.sum(r ** 2)) + p.chi2_constant() - p.n_observations()
 
 
+def _split(p, r) -> tuple[float, float]:
+    """(frames, triggers) parts of :func:`_excess` for a problem of one run: the plateau
+    frames' χ² above their number, the trigger rows' above theirs."""
+    g = p.residual_groups()
+    n_frames = int(sum(run.plateau_n.sum() for run in p.runs if run.kind == "events"))
+    frames = float(np.sum(r[: g["slopes"][1]] ** 2)) + p.chi2_constant() - n_frames
+    t0, t1 = g["triggers"]
+    return frames, float(np.sum(r[t0:t1] ** 2)) - (p.n_observations() - n_frames)
+
+
+def _parts(before, w_before, after, w_after) -> str:
+    """How a trial's excess χ² changed, frames and triggers apart: a change the frames
+    pay for is one only the model's triggers ask for."""
+    (f0, t0), (f1, t1) = _split(before, before.residuals(w_before)), _split(after, after.residuals(w_after))
+    return f"frames {f1 - f0:+.1f}, triggers {t1 - t0:+.1f}"
+
+
 def _trial(prob, w, changes: dict, model, values, short, say):
     """(problem, short solution, excess χ²) of a changed mode sequence; the excess is
     inf when the trial cannot be evaluated (it is then not taken)."""
@@ -342,8 +359,8 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
             continue
         its, wall = its + sol["iterations"], wall + sol["wall_s"]
         kept = f < now - 1.0
-        say(f"  {prob.runs[i].name}: slip at step {n} tried at {alt}: the run's chi2 - n_obs {now:.1f} -> {f:.1f}, "
-            + ("kept" if kept else "not kept"))
+        say(f"  {prob.runs[i].name}: slip at step {n} tried at {alt}: the run's chi2 - n_obs {now:.1f} -> {f:.1f} "
+            f"({_parts(sub, w_sub, trial, sol['w'])}), " + ("kept" if kept else "not kept"))
         if not kept:
             continue
         prob, best, it_full, s_full = _kept(prob, best, i, trial, sol, model, values, opts, say)
@@ -499,7 +516,8 @@ def _misfit_triggers(prob, best, model, values, opts, say):
             say(f"  {name}: no change at step {at} lowers chi2 (best: {label}, "
                 f"the run's chi2 - n_obs {now:.1f} -> {f:.1f})")
             continue
-        say(f"  {name}: {label}: the run's chi2 - n_obs {now:.1f} -> {f:.1f}, kept")
+        say(f"  {name}: {label}: the run's chi2 - n_obs {now:.1f} -> {f:.1f} "
+            f"({_parts(sub, w_sub, trial, sol['w'])}), kept")
         counts[kind] += n
         prob, best, it_full, s_full = _kept(prob, best, i, trial, sol, model, values, opts, say)
         its, wall = its + it_full, wall + s_full

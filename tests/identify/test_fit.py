@@ -391,7 +391,7 @@ def test_a_run_alone_has_the_whole_problems_rows(small_fit):
     """A mode-sequence trial solves one run with the parameters held: at the fitted w
     that run's residuals are the whole problem's rows for it, so the runs' excess χ²
     add up to the whole problem's, and the run's variables map back where they were."""
-    from identify.sequence import _alone, _excess, _run_index
+    from identify.sequence import _alone, _excess, _run_index, _split
 
     prob, w = small_fit.problem, small_fit.w
     model = prob.model
@@ -402,6 +402,7 @@ def test_a_run_alone_has_the_whole_problems_rows(small_fit):
         r = sub.residuals(w_sub)
         rows.append(r)
         total += _excess(sub, r)
+        assert sum(_split(sub, r)) == pytest.approx(_excess(sub, r), rel=1e-12)  # frames and triggers
         np.testing.assert_array_equal(w[_run_index(prob, i)], w_sub)
     r_all = prob.residuals(w)
     assert total == pytest.approx(_excess(prob, r_all), rel=1e-10)
