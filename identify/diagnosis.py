@@ -454,7 +454,7 @@ def _tasks(ids, current, runs, fopts, folds, opts, threads, where_hint):
     tail = np.asarray(current["w"])[current["n_theta"]:]
     common = dict(runs=runs, values=current["values"], free=current["free"], w_tail=tail, ev_M=current["ev_M"],
                   options=fopts, folds=folds, max_iter=opts.max_iter, threads=threads,
-                  null_chi2=current.get("chi2"), null_n_eff=current.get("n_eff"))
+                  null_chi2=current.get("chi2"), null_n_eff=current.get("n_eff"), screen_p=opts.alpha)
     added = dict(current.get("bounds", {}))  # bounds of the effects already added
     tasks = [CandidateTask(effect=None, law=current["law"], bounds=added, **common)]
     skipped = []

@@ -156,23 +156,28 @@ def test_held_out_fold_left_linear_when_no_refit_is_asked(small_fit):
 
 
 def test_only_candidates_that_could_be_named_get_their_folds_refitted():
+    from scipy import stats
+
     from identify.candidates import SCREEN_P, CandidateTask, _could_be_named
 
     t = CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=(), null_chi2=1000.0,
                       null_n_eff=10)
-    assert _could_be_named(t, 1000.0 - 10.0, 11)  # Δnll 5, one parameter: p = 0.0016
-    assert not _could_be_named(t, 1000.0 - 1.0, 11)  # Δnll 0.5: p = 0.32
-    assert not _could_be_named(t, 1001.0, 11)  # worse than the current model
-    from scipy import stats
-
+    assert _could_be_named(t, 1000.0 - 10.0, 11, 100)  # Δnll 5, one parameter: p = 0.0016
+    assert not _could_be_named(t, 1000.0 - 1.0, 11, 100)  # Δnll 0.5: p = 0.32
+    assert not _could_be_named(t, 1000.0 - 5.0, 11, 100)  # p = 0.025: above α, never named
+    assert not _could_be_named(t, 1001.0, 11, 100)  # worse than the current model
     edge = stats.chi2.isf(SCREEN_P, 1)
-    assert _could_be_named(t, 1000.0 - edge - 0.01, 11) and not _could_be_named(t, 1000.0 - edge + 0.01, 11)
+    assert _could_be_named(t, 1000.0 - edge - 0.01, 11, 100) and not _could_be_named(t, 1000.0 - edge + 0.01, 11, 100)
+    # p = 0.0047 < α, but on 10⁴ observations ΔBIC = −8 + 9.2 > 0: the diagnosis would not name it
+    assert not _could_be_named(t, 1000.0 - 8.0, 11, 10_000) and _could_be_named(t, 1000.0 - 10.0, 11, 10_000)
+    # the diagnosis passes its own α
+    assert _could_be_named(CandidateTask(**{**t.__dict__, "screen_p": 0.05}), 1000.0 - 5.0, 11, 100)
     law = CandidateTask(effect="aging_logistic", runs=[], law="logistic", values={}, free=(), null_chi2=1000.0,
                         null_n_eff=10)
-    assert _could_be_named(law, 990.0, 11) and not _could_be_named(law, 999.0, 11)  # ΔAIC −8 / +1
+    assert _could_be_named(law, 990.0, 11, 100) and not _could_be_named(law, 999.0, 11, 100)  # ΔAIC −8 / +1
     # the current model itself, and a task that does not know the current χ², always are
-    assert _could_be_named(CandidateTask(effect=None, runs=[], law="exponential", values={}, free=()), 5e3, 3)
-    assert _could_be_named(CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=()), 5e3, 3)
+    assert _could_be_named(CandidateTask(effect=None, runs=[], law="exponential", values={}, free=()), 5e3, 3, 100)
+    assert _could_be_named(CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=()), 5e3, 3, 100)
 
 
 def test_diagnosis_of_model_made_data_is_adequate(small_fit, tmp_path):
