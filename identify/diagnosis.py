@@ -36,7 +36,7 @@ from typing import Any, Callable
 import numpy as np
 from scipy import stats
 
-from .candidates import STALLED, CandidateTask, run_candidate
+from .candidates import GAVE_UP, GIVE_UP_MARGIN, STALLED, CandidateTask, run_candidate
 from .effects import EFFECTS, get_effect
 from .events import _jsonable  # NaN/inf -> null, numpy -> Python
 from .fit import FitError, FitOptions, fit
@@ -573,6 +573,10 @@ def _score(results, base, opts, n_cand) -> list:
         c["explained_share"] = _explained_share(c, base)
         c["closes"] = _closes(c)
         c["note"] = c["estimate_text"]
+        if c.get("status") == GAVE_UP:
+            c["note"] += (f" (refit stopped after {c.get('iterations')} iterations: even {GIVE_UP_MARGIN:g}× the "
+                          "gain its solver still promised could not make it significant; the p-value is an "
+                          "upper bound)")
         if c["heldout_error"]:
             c["note"] += f" (no held-out gap: {c['heldout_error']})"
         elif c.get("heldout_unverified_folds"):

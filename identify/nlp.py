@@ -84,6 +84,8 @@ STALL_ITERS = 4
 STALL_TOL = 0.01
 STALL_FEAS = 1e-4
 STALLED = "Stalled_Within_Tolerance"
+GAVE_UP = "Stopped_Cannot_Matter"  # status of a solve its give_up callback stopped
+GIVE_UP_FEAS = 1e-3  # (µm) the ½χ² of a point further from feasible says little
 # difference step of the arcs while the solver iterates. The arcs' integration noise
 # (~0.2 pm of slip length, adaptive steps) makes 1e-6 too small: measured, one arc's
 # d(slip)/d(state0) came out +0.14 against -0.082 (-0.081 at 1e-4, -0.082 at 1e-3),
@@ -255,6 +257,9 @@ class Problem:
         self.arcs = arc_functions(model, opts.arc_reltol, opts.arc_abstol)
         self.counter = dict(arc_s=0.0, jac_s=0.0, arc_calls=0, jac_calls=0)
         self.progress = None  # callable(str): the solver's iterations, for long solves
+        # callable(iteration, ½χ², ½χ² the Gauss–Newton step promises) -> bool: stop the
+        # solve (status GAVE_UP) when it says the rest cannot matter (identify.candidates)
+        self.give_up = None
         self._layout()
 
     # ---------------------------------------------------------------- layout
@@ -707,6 +712,11 @@ class Problem:
                 else:
                     status, success = "Solve_Succeeded", True
                 break
+            if self.give_up is not None and lm == 0 and feas0 < GIVE_UP_FEAS:
+                dr = Jr @ d
+                if self.give_up(it, 0.5 * float(r0 @ r0), -float(r0 @ dr + 0.5 * dr @ dr)):
+                    status = GAVE_UP
+                    break
             with np.errstate(divide="ignore", invalid="ignore"):
                 a_max = float(min(1.0, np.min(np.where(d < 0, (lbx - w) / d, np.inf)),
                                   np.min(np.where(d > 0, (ubx - w) / d, np.inf))))

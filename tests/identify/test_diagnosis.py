@@ -180,6 +180,47 @@ def test_only_candidates_that_could_be_named_get_their_folds_refitted():
     assert _could_be_named(CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=()), 5e3, 3, 100)
 
 
+def test_a_refit_that_cannot_become_nameable_is_stopped():
+    """The early stop compares the gain so far plus GIVE_UP_MARGIN × what the solver
+    still promises with what the screen needs; never in the first iterations, never for
+    the current model."""
+    from types import SimpleNamespace
+
+    from scipy import stats
+
+    from identify.candidates import GIVE_UP_AFTER, GIVE_UP_MARGIN, CandidateTask, _give_up
+
+    prob = SimpleNamespace(n_effective=lambda: 11, n_observations=lambda: 100, chi2_constant=lambda: 40.0)
+    t = CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=(), null_chi2=1000.0,
+                      null_n_eff=10)
+    stop = _give_up(t, prob)
+    need = stats.chi2.isf(t.screen_p, 1)  # 6.6 > ln(100) = 4.6
+    half = lambda gain: 0.5 * (1000.0 - 40.0 - gain)  # noqa: E731 (½ r·r after a χ² gain)
+    it = GIVE_UP_AFTER + 1
+    assert stop(it, half(1.0), 0.1) and not stop(GIVE_UP_AFTER, half(1.0), 0.1)
+    # 1 gained, and the promise could bring it to the threshold: go on
+    assert not stop(it, half(1.0), (need - 1.0) / (2 * GIVE_UP_MARGIN) + 0.01)
+    assert stop(it, half(1.0), (need - 1.0) / (2 * GIVE_UP_MARGIN) - 0.01)
+    assert not stop(it, half(need + 0.1), 0.0)  # already nameable
+    assert _give_up(CandidateTask(effect=None, runs=[], law="exponential", values={}, free=()), prob) is None
+
+
+def test_the_solver_stops_when_told_it_cannot_matter(small_fit):
+    from identify.nlp import GAVE_UP
+
+    prob, w = small_fit.problem, small_fit.w.copy()
+    w[: prob.n_theta] += 0.05
+    seen = []
+    prob.give_up = lambda it, half_chi2, promised: seen.append((it, half_chi2, promised)) or it >= 2
+    try:
+        sol = prob.solve_gn(w)
+    finally:
+        prob.give_up = None
+    # (asked only at points within GIVE_UP_FEAS of feasible, undamped)
+    assert sol["status"] == GAVE_UP and not sol["success"] and sol["iterations"] == seen[-1][0] >= 2
+    assert all(p >= 0 for _, _, p in seen)  # a Gauss–Newton step never promises a loss
+
+
 def test_diagnosis_of_model_made_data_is_adequate(small_fit, tmp_path):
     res = diagnose(None, baseline=small_fit, options=DiagnosisOptions(effects=("drift", "step_size")))
     assert res.verdict == "adequate" and res.effects == []
