@@ -573,18 +573,20 @@ def _score(results, base, opts, n_cand) -> list:
         c["explained_share"] = _explained_share(c, base)
         c["closes"] = _closes(c)
         c["note"] = c["estimate_text"]
-        if c.get("status") == GAVE_UP:
-            c["note"] += (f" (refit stopped after {c.get('iterations')} iterations: even {GIVE_UP_MARGIN:g}× the "
-                          "gain its solver still promised could not make it significant; the p-value is an "
-                          "upper bound)")
+        stopped = (f"refit stopped after {c.get('iterations')} iterations in all: even {GIVE_UP_MARGIN:g}× the "
+                   "gain its solver still promised could not make it significant; its Δnll is a lower "
+                   "bound, the p-value an upper bound") if c.get("status") == GAVE_UP else ""
+        if stopped:
+            c["note"] += f" ({stopped})"
         if c["heldout_error"]:
             c["note"] += f" (no held-out gap: {c['heldout_error']})"
         elif c.get("heldout_unverified_folds"):
             c["note"] += (f" (held-out gap: {c['heldout_unverified_folds']} fold(s) from the linear "
                           "leave-out step, which the model did not confirm there; their refit failed)")
         if c.get("worse"):
-            c["note"] = "the refit ended worse than the current model (a local solution): no evidence; " + \
-                c["estimate_text"]
+            c["note"] = ("the refit ended worse than the current model (a local solution): no evidence; "
+                         if not stopped else f"worse than the current model when its {stopped}: no evidence; "
+                         ) + c["estimate_text"]
         out.append(c)
     return out
 

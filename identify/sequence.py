@@ -208,16 +208,32 @@ def _adopt(prob, w, i: int, trial, w_trial, model, values, opts, say):
     solution, the other runs and the parameters as in ``w``."""
     full, w0 = _with_triggers(prob, w, {i: trial.runs[0].trigger_steps}, model, values, opts, say)
     w0[_run_index(full, i)] = w_trial
-    full.size_arcs(w0)  # (the trial may have sized an arc longer)
-    return full, w0
+    # the trial's solution may slip past an arc's horizon (the trial does not resize);
+    # a longer arc changes the next rest, so the starts are synced to the arcs again
+    return full, full.settle_arcs(w0)
 
 
 def _kept(prob, best, i, trial, sol, model, values, opts, say):
     """A local trial kept: its sequence and solution taken into the whole problem, which
-    is solved to convergence with the parameters free (:func:`_keep`)."""
-    full, w0 = _adopt(prob, best["w"], i, trial, sol["w"], model, values, opts, say)
-    r = full.residuals(w0)
+    is solved to convergence with the parameters free (:func:`_keep`). None if the whole
+    problem cannot be rebuilt for it (the change is then not made)."""
+    try:
+        full, w0 = _adopt(prob, best["w"], i, trial, sol["w"], model, values, opts, say)
+        r = full.residuals(w0)
+    except Exception as err:
+        log.info("taking a kept mode-sequence change into the whole problem failed: %s", err)
+        return None
     return _keep(full, dict(sol, w=w0, f=0.5 * float(r @ r)), opts)
+
+
+def _alone_or_none(prob, w, i, model, opts, say):
+    """:func:`_alone`, or None (logged) if run i cannot be set up alone."""
+    try:
+        sub, w_sub = _alone(prob, w, i, model, opts, say)
+        return sub, w_sub, _excess(sub, sub.residuals(w_sub))
+    except Exception as err:
+        log.info("run %d alone could not be set up for mode-sequence trials: %s", i, err)
+        return None
 
 
 def _excess(p, r) -> float:
@@ -352,8 +368,10 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
             log.info("ambiguous triggers: stopped after %d trials", tried)
             break
         tried += 1
-        sub, w_sub = _alone(prob, best["w"], i, model, opts, say)
-        now = _excess(sub, sub.residuals(w_sub))
+        alone = _alone_or_none(prob, best["w"], i, model, opts, say)
+        if alone is None:
+            continue
+        sub, w_sub, now = alone
         trial, sol, f = _trial(sub, w_sub, {0: new_steps}, model, sub.values, short, say)
         if trial is None:
             continue
@@ -363,7 +381,10 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
             f"({_parts(sub, w_sub, trial, sol['w'])}), " + ("kept" if kept else "not kept"))
         if not kept:
             continue
-        prob, best, it_full, s_full = _kept(prob, best, i, trial, sol, model, values, opts, say)
+        taken = _kept(prob, best, i, trial, sol, model, values, opts, say)
+        if taken is None:
+            continue
+        prob, best, it_full, s_full = taken
         moved, its, wall = moved + 1, its + it_full, wall + s_full
         r_now = prob.residuals(best["w"])
     if fit_there:
@@ -493,8 +514,11 @@ def _misfit_triggers(prob, best, model, values, opts, say):
         i, k, moves = target
         before = prob.runs[i].trigger_steps
         name, at = prob.runs[i].name, int(before[k])
-        sub, w_sub = _alone(prob, best["w"], i, model, opts, say)
-        now = _excess(sub, sub.residuals(w_sub))
+        alone = _alone_or_none(prob, best["w"], i, model, opts, say)
+        if alone is None:
+            tried.update((i, _local(before, m[1])) for m in moves)  # (not tried again)
+            continue
+        sub, w_sub, now = alone
         results = []
         for label, steps, kind, n in moves[: budget - trials]:
             trials += 1
@@ -518,8 +542,11 @@ def _misfit_triggers(prob, best, model, values, opts, say):
             continue
         say(f"  {name}: {label}: the run's chi2 - n_obs {now:.1f} -> {f:.1f} "
             f"({_parts(sub, w_sub, trial, sol['w'])}), kept")
+        taken = _kept(prob, best, i, trial, sol, model, values, opts, say)
+        if taken is None:
+            continue
         counts[kind] += n
-        prob, best, it_full, s_full = _kept(prob, best, i, trial, sol, model, values, opts, say)
+        prob, best, it_full, s_full = taken
         its, wall = its + it_full, wall + s_full
         tried.add((i, _local(prob.runs[i].trigger_steps, before)))  # (its undoing)
         r_now = prob.residuals(best["w"])

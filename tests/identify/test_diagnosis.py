@@ -203,6 +203,9 @@ def test_a_refit_that_cannot_become_nameable_is_stopped():
     assert stop(it, half(1.0), (need - 1.0) / (2 * GIVE_UP_MARGIN) - 0.01)
     assert not stop(it, half(need + 0.1), 0.0)  # already nameable
     assert _give_up(CandidateTask(effect=None, runs=[], law="exponential", values={}, free=()), prob) is None
+    # a law's refit starts far off: never stopped
+    assert _give_up(CandidateTask(effect="aging_logistic", runs=[], law="logistic", values={}, free=(),
+                                  null_chi2=1000.0, null_n_eff=10), prob) is None
 
 
 def test_the_solver_stops_when_told_it_cannot_matter(small_fit):

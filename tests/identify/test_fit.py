@@ -409,6 +409,28 @@ def test_a_run_alone_has_the_whole_problems_rows(small_fit):
     np.testing.assert_allclose(np.sort(np.concatenate(rows)), np.sort(r_all), rtol=1e-10, atol=1e-12)
 
 
+@pytest.mark.parametrize("layout", [dict(free_offset=True), dict(arc_start="mid"), dict(free_phase=True)])
+def test_a_run_alone_maps_every_layout(small_fit, layout):
+    """The run's variables and rows map between the whole problem and the run alone for
+    the other layouts too (an offset per run, no start variables, free phases)."""
+    from dataclasses import replace
+
+    from identify.sequence import _alone, _excess, _run_index
+
+    opts = replace(small_fit.problem.opts, **layout)
+    prob = Problem(small_fit.problem.runs, small_fit.problem.model, small_fit.problem.values, opts).build()
+    w = prob.initial_w(small_fit.values)
+    if prob.n_off:
+        w[prob.i_off: prob.i_off + prob.n_off] = [0.01, -0.02]  # distinct, so a mix-up shows
+    total = 0.0
+    for i in range(len(prob.runs)):
+        sub, w_sub = _alone(prob, w, i, prob.model, opts, None)
+        np.testing.assert_array_equal(w[_run_index(prob, i)], w_sub)
+        assert sub.n_w == len(w_sub) and sub.n_off == prob.n_off // len(prob.runs)
+        total += _excess(sub, sub.residuals(w_sub))
+    assert total == pytest.approx(_excess(prob, prob.residuals(w)), rel=1e-10)
+
+
 def test_a_kept_change_ends_on_its_full_solve():
     """The full solve after a kept change wins even at a higher ½χ² than the trial's
     short solve (whose point may violate the constraints); only a failed one does not."""
