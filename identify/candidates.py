@@ -36,8 +36,9 @@ below α over the number of candidates and ΔBIC < 0, a law only with ΔAIC < �
 screen asks p < :attr:`CandidateTask.screen_p` (the diagnosis passes its α, 0.01: the
 Bonferroni divisor left out, as a later round has fewer candidates) and ΔBIC < 0 (which
 alone needs p ≲ 0.002 for one parameter on 10⁴ frames), ΔAIC < 0 for a law, each
-against the current model's χ² as the task carries it. For any other candidate the held-out gap is reported where the linear steps hold for every
-fold, and not computed (the reason given) where they do not: a linear prediction the
+against the current model's χ² as the task carries it. For any other candidate the
+held-out gap is reported where the linear steps hold for every fold, and not computed
+(the reason given) where they do not: a linear prediction the
 model contradicts, beside the current model's refitted folds, is no comparison (on the
 out-of-library benchmark set it put the held-out χ² of a refit that had not moved at 3×
 the current model's). Measured on model-made data (8 runs, all candidates, four
@@ -58,10 +59,10 @@ freed. Nested candidates only (a law's refit starts far off). The screen is judg
 against the χ² the task carries, the current model's from the previous round; the
 diagnosis scores against the current model re-solved in this round from that solution,
 whose χ² is lower when the re-solve gains anything, which makes the screen looser than
-the score, not tighter. Measured on
-model-made data (8 runs, one worker): the refits that end not significant took 20
-iterations (stick_threshold, 44 s), 17 (rejuvenation, 34 s; load_offset, 26 s), 13
-(topography, 30 s) to report p = 0.12-0.95."""
+the score, not tighter. Measured on model-made data (8 runs, one worker), before the
+stop: the refits that end not significant took 20 iterations (stick_threshold, 44 s),
+17 (rejuvenation, 34 s; load_offset, 26 s), 13 (topography, 30 s) to report
+p = 0.12-0.95; with it (two workers) they stop after 4-5 iterations, 9-13 s each."""
 # STALLED (from :mod:`identify.nlp`) is also the status of a refit whose last round of
 # iterations, at the iteration limit, gained less than ROUND_GAIN: its Δnll is known to
 # better than a likelihood unit, which is what the scores need, though the step test has
