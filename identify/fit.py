@@ -456,9 +456,10 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         best = sol
     # then the detector's ambiguous triggers, against the repaired sequence (tried before
     # it, on merged slips, they moved correct triggers: calibration seeds 1 and 4)
+    # (its kept changes are solved at held parameters; the misfit pass solves them jointly)
     prob, best, n_alt = _ambiguous_triggers(prob, best, model, values, opts, say)
     # last, whatever the local scores and the detector left where the model's triggers misfit
-    prob, best, n_seq = _misfit_triggers(prob, best, model, values, opts, say)
+    prob, best, n_seq = _misfit_triggers(prob, best, model, values, opts, say, unsolved=n_alt > 0)
     best["triggers_moved"] = refined + n_alt + n_seq["moved"]
     best["slips_inserted"] = inserted + n_seq["inserted"]
     best["slips_removed"] = n_seq["removed"]

@@ -579,13 +579,17 @@ class Problem:
         """Grow each arc's span (doubling, up to the next trigger) until its block stops;
         returns how many still move at their horizon."""
         cap = np.minimum(self.ev_gap, self.opts.max_arc_steps)
+        at_end = self.arc_outputs(w)[4] > 0.5
         for _ in range(12):
-            moving = (self.arc_outputs(w)[4] > 0.5) & (self.ev_M < cap)
+            moving = at_end & (self.ev_M < cap)
             if not moving.any():
                 break
             self.ev_M = np.where(moving, np.minimum(2 * self.ev_M, cap), self.ev_M)
             self.build()
-        return int((self.arc_outputs(w)[4] > 0.5).sum())
+            at_end = self.arc_outputs(w)[4] > 0.5
+        # (the count is of the arcs as they are now: no evaluation more than the loop's, which
+        # matters for a mode-sequence trial, whose set-up sizes the arcs twice)
+        return int(at_end.sum())
 
     def bounds(self, fixed: Mapping[int, float] | None = None):
         lbx = np.full(self.n_w, -np.inf)
