@@ -122,3 +122,41 @@ def test_withheld_datasets_switch_the_effect_on():
     # the metadata keep the nominal loads; the frames were made with other ones
     assert [tr.normal_load for tr in out] == pytest.approx([5e-6, 30e-6])
     assert np.max(np.abs(out[0].elongation - base[0].elongation)) > 1e-8
+
+
+@pytest.fixture(scope="module")
+def staircase_runs():
+    """The withheld-effect benchmark's 8 conditions: no effect, a 5 % step-size error, a
+    drift of 5e-8 m/s (the runs' data as the NLP reads them)."""
+    from identify.events import extract_events
+    from identify.withheld import CONDITIONS, withheld_dataset
+
+    out = {}
+    for eid in (None, "step_size", "drift"):
+        traces = withheld_dataset(eid, conditions=CONDITIONS, base={"A": 0.015})
+        out[eid] = [_run_data(extract_events(tr)) for tr in traces]
+    return out
+
+
+def test_staircase_slopes_start_a_step_size_or_drift_refit(staircase_runs):
+    """The staircase slopes show a step-size error or a drift without the model
+    (measured: s_x 1.0488 for 1.05, r_d 4.95e-8 for 5e-8 m/s); on data the model made
+    they offer no start (within 5 standard errors of the null)."""
+    from identify.diagnosis import _starts
+    from identify.effects import staircase_fit
+
+    none, step, drift = staircase_runs[None], staircase_runs["step_size"], staircase_runs["drift"]
+    assert staircase_fit(none, {}, "step_scale") is None and staircase_fit(none, {}, "drift_rate") is None
+    assert staircase_fit(step, {}, "step_scale") == pytest.approx(1.05, abs=0.005)
+    assert staircase_fit(drift, {}, "drift_rate") == pytest.approx(5e-8, rel=0.05)
+    # held at the truth, the other one has nothing left to explain
+    assert staircase_fit(step, {"drift_rate": 0.0, "step_scale": 1.05}, "drift_rate") is None
+    # the candidate is offered the estimate from the current solution and from a staged start
+    eff = get_effect("step_size")
+    starts = _starts(eff, eff.null_values({}), [], step, {})
+    assert starts[0] == {"step_scale": 1.0}
+    assert [s.get("_staged", False) for s in starts[1:]] == [False, True]
+    assert starts[1]["step_scale"] == pytest.approx(1.05, abs=0.005)
+    assert _starts(eff, eff.null_values({}), [], none, {}) == [{"step_scale": 1.0}]
+    with pytest.raises(ValueError, match="no staircase estimate"):
+        staircase_fit(step, {}, "A")
