@@ -477,7 +477,7 @@ def _tasks(ids, current, runs, fopts, folds, opts, threads, where_hint):
                 starts=[{}], staged=True, **{**common, "values": vals}))
             continue
         nulls = eff.null_values(current["values"])
-        starts = _starts(eff, nulls, where_hint, runs, current["values"])
+        starts = _starts(eff, nulls, where_hint)
         vals = {**current["values"], **nulls}
         tasks.append(CandidateTask(effect=eid, law=current["law"], extra=tuple(eff.parameters),
                                    bounds={**added, **dict(eff.bounds)}, starts=starts, nulls=nulls,
@@ -485,30 +485,21 @@ def _tasks(ids, current, runs, fopts, folds, opts, threads, where_hint):
     return tasks, skipped
 
 
-def _starts(eff, nulls, where_hint, runs=(), values=None) -> list:
+def _starts(eff, nulls, where_hint) -> list:
     """Warm starts of a candidate's own parameters: the null, nudged off it where the
-    Jacobian vanishes there, for the topography the ripple the residuals show, and what
-    the data show of the effect without the model (:meth:`Effect.data_starts`: the
-    staircase slopes for a step-size error or a drift), from the current solution and
-    from a fresh staged start. Measured on a 5 % step-size error: the baseline fit broke
-    (held-out gap 100× the noise) and the refit from the null did not leave it (p = 1)."""
-    extra = []
-    for d in eff.data_starts(runs, {**(values or {}), **nulls}):
-        d = {n: float(min(max(v, eff.bounds[n][0]), eff.bounds[n][1])) if n in eff.bounds else v
-             for n, v in d.items()}
-        extra += [dict(d), {**d, "_staged": True}]
+    Jacobian vanishes there, and for the topography the ripple the residuals show."""
     if eff.id == "topography":
         pos = next((m for m in where_hint if m.feature == "position"), None)
         lam = pos.extra.get("wavelength_m", 5e-6) if pos else 5e-6
         amp = pos.extra.get("amplitude", 0.01) if pos else 0.01
         ph = pos.extra.get("phase", 0.0) if pos else 0.0
         # the residual ripple is a·sin(θ) + b·cos(θ) = amp·sin(θ + ph); the model's is the capacity
-        return [dict(topo_amp=s * max(amp, 1e-3), topo_phase=ph, topo_wavelength=lam) for s in (1.0, -1.0)] + extra
+        return [dict(topo_amp=s * max(amp, 1e-3), topo_phase=ph, topo_wavelength=lam) for s in (1.0, -1.0)]
     if eff.id == "motion_blur":
-        return [dict(exposure=1e-4), dict(exposure=2e-3)] + extra  # no slope at T = 0
+        return [dict(exposure=1e-4), dict(exposure=2e-3)]  # no slope at T = 0
     if eff.id == "stick_threshold" and nulls.get("v_stick", 0.0) == 0.0:
-        return [dict(v_stick=1e-6), dict(v_stick=1e-4)] + extra
-    return [dict(nulls)] + eff.nudges() + extra
+        return [dict(v_stick=1e-6), dict(v_stick=1e-4)]
+    return [dict(nulls)] + eff.nudges()
 
 
 def _score(results, base, opts, n_cand) -> list:

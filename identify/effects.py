@@ -104,13 +104,6 @@ class Effect:
                 out.append({n: float(min(max(null + step, lo), hi)), "_staged": True})
         return out
 
-    def data_starts(self, runs, values: Mapping[str, float]) -> list:
-        """Starts read off the data themselves, for an effect whose size the frames show
-        without the model (none by default). Each is offered twice: from the current
-        solution, and with the other parameters from a fresh staged start (``_staged``),
-        as the current model's may have bent to absorb the effect."""
-        return []
-
     def simulation_values(self, magnitude: float | None = None) -> dict:
         """Parameter values that switch the effect on (for withheld-effect data sets)."""
         name, value, _ = self.magnitude
@@ -122,41 +115,6 @@ class Effect:
 
     def __repr__(self) -> str:
         return f"<Effect {self.id}: {', '.join(self.parameters) or self.law}>"
-
-
-DATA_START_Z = 5.0
-"""A start read off the staircase slopes (:func:`staircase_fit`) is offered only when it
-lies this many of its standard errors from the current value: on data the model made it
-is the current value again, and a second solve from it would be wasted."""
-
-
-def staircase_fit(runs, values: Mapping[str, float], name: str) -> float | None:
-    """``step_scale`` or ``drift_rate`` from the runs' pooled staircase slopes, the other
-    held at ``values``: slope_r = s_x·Δx_r + r_d/fp_r, each run weighted by its S_nn/σ²
-    (the information the NLP's slope rows carry). None when no run has a staircase, or
-    when the estimate lies within :data:`DATA_START_Z` standard errors of the current
-    value."""
-    rows = [r for r in runs if getattr(r, "kind", None) == "events" and r.s_nn > 0]
-    if not rows:
-        return None
-    s, rd = float(values.get("step_scale", 1.0)), float(values.get("drift_rate", 0.0))
-    wt = [r.s_nn / r.sigma**2 for r in rows]
-    if name == "step_scale":
-        x = [r.step_nominal for r in rows]
-        y = [r.slope_hat - rd / r.fp for r in rows]
-        now = s
-    elif name == "drift_rate":
-        x = [1.0 / r.fp for r in rows]
-        y = [r.slope_hat - s * r.step_nominal for r in rows]
-        now = rd
-    else:
-        raise ValueError(f"no staircase estimate for {name!r}")
-    sxx = sum(w * a * a for w, a in zip(wt, x))
-    if not sxx > 0:
-        return None
-    est = sum(w * a * b for w, a, b in zip(wt, x, y)) / sxx
-    se = 1.0 / math.sqrt(sxx)
-    return float(est) if abs(est - now) > DATA_START_Z * se else None
 
 
 def effect_ids() -> tuple:
@@ -302,12 +260,6 @@ class StepSize(Effect):
     touches = ("stick_slope", "post_slip_level")
     magnitude = ("step_scale", 1.05, "-")
 
-    def data_starts(self, runs, values):
-        # during a stick the elongation rises by one puller step per step: each run's
-        # pooled staircase slope measures s_x·Δx_nominal (plus drift/fp, taken as 0 here)
-        est = staircase_fit(runs, values, "step_scale")
-        return [] if est is None else [{"step_scale": est}]
-
 
 class Topography(Effect):
     """Friction varying along the track, the same for every run of a device:
@@ -339,12 +291,6 @@ class Drift(Effect):
     bounds = {"drift_rate": (-1e-5, 1e-5)}
     touches = ("time", "stick_slope", "post_slip_level")
     magnitude = ("drift_rate", 5e-8, "m/s")
-
-    def data_starts(self, runs, values):
-        # a drift adds r_d/fp to each run's staircase slope: runs at low step frequencies
-        # show it most
-        est = staircase_fit(runs, values, "drift_rate")
-        return [] if est is None else [{"drift_rate": est}]
 
 
 class MotionBlur(Effect):
