@@ -449,6 +449,26 @@ def test_a_kept_change_ends_on_its_full_solve():
     assert _keep(failed, short, opts)[1]["f"] == 1.0
 
 
+def test_the_joint_solve_after_a_pass_adds_to_the_fits_count():
+    """Kept changes are solved jointly once per pass (:func:`identify.sequence._joint`):
+    its iterations and time add to those the solution carries, and it says so."""
+    from types import SimpleNamespace
+
+    from identify.sequence import _joint
+
+    opts = FitOptions(fixed={"v_stick": V_STICK})
+    said = []
+    adopted = dict(w=np.zeros(2), f=1.0, status="Solve_Succeeded", success=False, iterations=40, wall_s=20.0)
+    full = dict(w=np.ones(2), f=0.9, status="Solve_Succeeded", success=True, iterations=9, wall_s=1.5)
+    prob, best = _joint(SimpleNamespace(opts=None, solve=lambda w: dict(full)), adopted, opts, said.append)
+    assert best["f"] == 0.9 and best["success"] and (best["iterations"], best["wall_s"]) == (49, 21.5)
+    assert prob.opts is opts and said and "re-solved" in said[0]
+    failed = SimpleNamespace(opts=None, solve=lambda w: dict(full, f=np.inf))
+    prob, best = _joint(failed, adopted, opts, said.append)
+    # a failed solve's point is not taken; its iterations were spent all the same
+    assert best["f"] == 1.0 and not best["success"] and best["iterations"] == 49
+
+
 def _detected_at(ev, triggers):
     """``ev`` as if the detector had put slips at ``triggers`` and named no alternative:
     per-slip and per-plateau values from the nearest detected ones, frames assigned to
