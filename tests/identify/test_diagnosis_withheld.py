@@ -45,12 +45,6 @@ def test_an_effect_outside_the_library_is_unexplained():
     assert res.verdict == "unexplained"
 
 
-STEP_SIZE_FAILS = pytest.mark.xfail(strict=True, reason=(
-    "measured: with the puller step 5 % off its metadata the baseline fit breaks (held-out gap "
-    "2.3 µm, 100x the noise) and the step_size refit does not leave its null (p = 1): "
-    "verdict unexplained, nothing named"))
-
-
 DAMPING_ABSORBED = pytest.mark.xfail(strict=True, reason=(
     "measured: c_extra = 2e-5 N s/m leaves the features within the noise (held-out gap 25 nm, "
     "noise 21 nm): the baseline's velocity strengthening A absorbs it; verdict adequate, p = 0.98"))
@@ -66,7 +60,7 @@ DRIFT_NOT_NAMED = pytest.mark.xfail(strict=True, reason=(
 
 
 @pytest.mark.parametrize("eid", [pytest.param("drift", marks=DRIFT_NOT_NAMED),
-                                 pytest.param("step_size", marks=STEP_SIZE_FAILS),
+                                 "step_size",
                                  pytest.param("damping", marks=DAMPING_ABSORBED), "load_offset",
                                  "spring_nonlinearity"])
 def test_withheld_effect_is_named(eid):
