@@ -13,7 +13,8 @@ there, so data whose triggers fit pay nothing.
 A trial changes one run's sequence, and given the parameters the runs are independent
 (each has its own plateaus, offset, phase and arc starts), so a trial solves that run
 alone with the parameters held (:func:`_alone`): its χ² change is the whole problem's
-at those parameters. Only a kept change is solved jointly, the parameters free.
+at those parameters. Kept changes are solved jointly, the parameters free, once per
+pass (:func:`_joint`).
 """
 
 from __future__ import annotations
@@ -216,8 +217,8 @@ def _adopt(prob, w, i: int, trial, w_trial, model, values, opts, say):
 def _kept(prob, best, i, trial, sol, model, values, opts, say):
     """A local trial kept: the run alone converged (the parameters still held), then its
     sequence and solution taken into the whole problem. Returns (problem, solution,
-    iterations, wall s), or None if the whole problem cannot be rebuilt for it (the
-    change is then not made). The whole problem is solved with the parameters free once
+    iterations, wall s); problem and solution are None if the whole problem cannot be
+    rebuilt for it (the change is then not made; the iterations were spent). The whole problem is solved with the parameters free once
     the pass has no more changes to try (:func:`_keep`), not after each: a trial is
     judged at held parameters anyway, and converging its run first means the next
     trial on that run does not count the run's unfinished iterations as its own gain.
@@ -238,7 +239,7 @@ def _kept(prob, best, i, trial, sol, model, values, opts, say):
         r = full.residuals(w0)
     except Exception as err:
         log.info("taking a kept mode-sequence change into the whole problem failed: %s", err)
-        return None
+        return None, None, its, wall
     return full, dict(best, w=w0, f=0.5 * float(r @ r), success=False, status=sol["status"]), its, wall
 
 
@@ -316,19 +317,25 @@ def _keep(trial, sol, opts):
     """The whole problem solved to convergence, the parameters free, from the point
     where a pass's kept changes left it (:func:`_kept`). Returns (problem, solution,
     iterations, wall s) of that solve."""
+    # (if that solve fails, the adopted point stands, its parameters never freed: say so)
+    failed = f"{sol.get('status')}; the joint solve after the kept mode-sequence changes failed"
     prob, best = trial, dict(sol, success=False)
     try:
         full = _solve_again(prob, best["w"], opts)
-    except Exception as err:  # the trial's solution stands
+    except Exception as err:  # the adopted point stands
         log.info("solve after a kept mode-sequence move failed: %s", err)
-        return prob, best, 0, 0.0
-    # the full solve wins even at a higher ½χ²: it starts from the trial's point and
-    # descends a merit that counts the constraints, which a 4-iteration point can still
-    # violate (kept instead, that point ended calibration seed 1 as not converged)
+        return prob, dict(best, status=failed), 0, 0.0
+    # the joint solve wins even at a higher ½χ²: it starts from the point the kept changes
+    # were adopted at and descends a merit that counts the constraints, which that point
+    # can still violate (a kept 4-iteration trial point, kept instead, ended calibration
+    # seed 1 as not converged)
     if np.isfinite(full["f"]):
         if full["f"] > best["f"]:
-            log.info("kept change solved to %s at ½χ² %.6g, above the trial's %.6g", full["status"], full["f"], best["f"])
+            log.info("kept changes solved to %s at ½χ² %.6g, above the adopted point's %.6g",
+                     full["status"], full["f"], best["f"])
         best = full
+    else:
+        best["status"] = failed
     return prob, best, full["iterations"], full["wall_s"]
 
 
@@ -408,11 +415,11 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
             f"({_parts(sub, w_sub, trial, sol['w'])}), " + ("kept" if kept else "not kept"))
         if not kept:
             continue
-        taken = _kept(prob, best, i, trial, sol, model, values, opts, say)
-        if taken is None:
+        full, adopted, it_full, s_full = _kept(prob, best, i, trial, sol, model, values, opts, say)
+        its, wall = its + it_full, wall + s_full
+        if full is None:
             continue
-        prob, best, it_full, s_full = taken
-        moved, its, wall = moved + 1, its + it_full, wall + s_full
+        prob, best, moved = full, adopted, moved + 1
         r_now = prob.residuals(best["w"])
     if fit_there:
         say(f"  {fit_there} other ambiguous trigger(s) not tried: the model's triggers fit there")
@@ -504,8 +511,8 @@ def _misfit_triggers(prob, best, model, values, opts, say, unsolved: bool = Fals
     So, worst first, at each slip whose trigger residual exceeds :data:`TRIGGER_GATE`,
     the local changes of :func:`_moves` are each solved for :data:`SCREEN_ITER`
     iteration and the :data:`SCREEN_KEEP` best on to :data:`TRIAL_ITER`; the best is
-    kept when it lowers χ² − n_obs by more than 1, solved to convergence, and the
-    residuals read again. Measured on seed 28 from the fitted
+    kept when it lowers χ² − n_obs by more than 1, its run solved to convergence, and
+    the residuals read again. Measured on seed 28 from the fitted
     sequence: the insertion gained 473, moving either late slip 33-34, the early pair 30;
     single moves in the wrong direction lost 57 to 106. At most ``opts.sequence_trials``
     trials (0: the pass is off). Errors that leave the slip's own trigger and the next
@@ -584,12 +591,12 @@ def _misfit_triggers(prob, best, model, values, opts, say, unsolved: bool = Fals
             continue
         say(f"  {name}: {label}: the run's chi2 - n_obs {now:.1f} -> {f:.1f} "
             f"({_parts(sub, w_sub, trial, sol['w'])}), kept")
-        taken = _kept(prob, best, i, trial, sol, model, values, opts, say)
-        if taken is None:
+        full, adopted, it_full, s_full = _kept(prob, best, i, trial, sol, model, values, opts, say)
+        its, wall = its + it_full, wall + s_full
+        if full is None:
             continue
         counts[kind] += n
-        prob, best, it_full, s_full = taken
-        its, wall, pending = its + it_full, wall + s_full, True
+        prob, best, pending = full, adopted, True
         tried.add((i, _local(prob.runs[i].trigger_steps, before)))  # (its undoing)
         r_now = prob.residuals(best["w"])
     if pending:  # (the trial budget spent)

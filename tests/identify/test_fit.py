@@ -465,8 +465,12 @@ def test_the_joint_solve_after_a_pass_adds_to_the_fits_count():
     assert prob.opts is opts and said and "re-solved" in said[0]
     failed = SimpleNamespace(opts=None, solve=lambda w: dict(full, f=np.inf))
     prob, best = _joint(failed, adopted, opts, said.append)
-    # a failed solve's point is not taken; its iterations were spent all the same
+    # a failed solve's point is not taken; its iterations were spent all the same, and the
+    # status says the parameters were never freed (not the run-alone solve's success)
     assert best["f"] == 1.0 and not best["success"] and best["iterations"] == 49
+    assert "joint solve after the kept mode-sequence changes failed" in best["status"]
+    raising = SimpleNamespace(opts=None, solve=lambda w: (_ for _ in ()).throw(RuntimeError("boom")))
+    assert "joint solve" in _joint(raising, adopted, opts, said.append)[1]["status"]
 
 
 def _detected_at(ev, triggers):
