@@ -218,10 +218,11 @@ def _kept(prob, best, i, trial, sol, model, values, opts, say):
     """A local trial kept: the run alone converged (the parameters still held), then its
     sequence and solution taken into the whole problem. Returns (problem, solution,
     iterations, wall s); problem and solution are None if the whole problem cannot be
-    rebuilt for it (the change is then not made; the iterations were spent). The whole problem is solved with the parameters free once
-    the pass has no more changes to try (:func:`_keep`), not after each: a trial is
-    judged at held parameters anyway, and converging its run first means the next
-    trial on that run does not count the run's unfinished iterations as its own gain.
+    rebuilt for it (the change is then not made; the iterations were spent). The whole
+    problem is solved with the parameters free once the pass has no more changes to try
+    (:func:`_joint`), not after each: a trial is judged at held parameters anyway, and
+    converging its run first means the next trial on that run does not count the run's
+    unfinished iterations as its own gain.
     Measured on the 8-run model-made set of :mod:`identify.withheld` (the machine to
     itself, by the profiler): the five joint solves after its five kept changes took
     5.3 s of a 52 s fit; the one joint solve now takes 1.8 s, and the fit 48.5 s (42.7 s
