@@ -16,7 +16,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .features import feature_values, gap
+from .features import Layout, feature_values, gap
 from .heldout import heldout_residuals
 from .nlp import GAVE_UP, STALLED
 
@@ -206,6 +206,9 @@ def run_candidate(task: CandidateTask) -> dict:
         info = _confounding(prob, w, ev, task.extra if task.effect else ())
         feats = feature_values(prob, w, r)
         fitted = gap(feats)
+        rows = Layout.of(prob).row_run
+        if task.folds:
+            fitted["chi2_by_fold"] = _chi2_by_fold(r, rows, task.folds)
         heldout = dict(gap_um=float("nan"))
         if task.folds:
             try:
@@ -216,11 +219,18 @@ def run_candidate(task: CandidateTask) -> dict:
                     # beside the current model's refitted folds
                     raise _NotComputed(f"{len(ho.unverified)} of {len(task.folds)} fold(s) not confirmed by the "
                                        "model and not refitted (no test could name this candidate)")
-                heldout = gap(feature_values(prob, w, ho.residuals))
+                feats_ho = feature_values(prob, w, ho.residuals)
+                heldout = gap(feats_ho)
+                # the held-out gap without each fold in turn, for a rule one run cannot decide
+                # (diagnosis._heldout_gain)
+                n_runs = len(prob.runs)
+                heldout["gap_um_without_fold"] = [
+                    gap(feats_ho, runs=[i for i in range(n_runs) if i not in set(f)])["gap_um"] for f in task.folds]
                 # the held-out deviance: every row in its own noise units, as the fit
                 # weighs them (the µm gap weighs features by their size in µm)
                 fin = np.isfinite(ho.residuals)
                 heldout["chi2"] = float(ho.residuals[fin] @ ho.residuals[fin])
+                heldout["chi2_by_fold"] = _chi2_by_fold(ho.residuals, rows, task.folds)
                 heldout["n_rows"] = int(fin.sum())
                 heldout["refitted_folds"] = len(ho.refitted)
                 heldout["unverified_folds"] = len(ho.unverified)
@@ -240,6 +250,16 @@ def run_candidate(task: CandidateTask) -> dict:
     except Exception as err:  # one failed candidate never sinks the diagnosis
         return dict(effect=task.effect, ok=False, status=f"failed: {type(err).__name__}: {err}", error=str(err),
                     wall_s=time.perf_counter() - t0)
+
+
+def _chi2_by_fold(r: np.ndarray, row_run: np.ndarray, folds) -> list:
+    """χ² of each fold's rows (rows the model could not give left out)."""
+    out = []
+    for f in folds:
+        a = r[np.isin(row_run, list(f))]
+        a = a[np.isfinite(a)]
+        out.append(float(a @ a))
+    return out
 
 
 class _NotComputed(Exception):

@@ -14,8 +14,8 @@ it shrinks once that effect is added — on runs the fit did not see (DESIGN.md 
    candidate explains the same residuals as well (nearly parallel residual change and
    |ΔΔAIC| < 10: both are reported as confounded and neither is named), and it closes a
    real part of the gap on held-out runs (:func:`_closes`: of the µm gap, or of the
-   excess χ² with the likelihood gain kept held out). Forward selection adds it and
-   tries the rest again.
+   excess χ² with the likelihood gain kept held out, on all folds or on all but the one
+   that argues most against it). Forward selection adds it and tries the rest again.
 4. Verdict: ``adequate`` when the final model's held-out gap is within ``gap_tolerance``
    (1.5×) of the noise floor, or when no feature is significant (Bonferroni over the
    features) and no nameable candidate is left significant; else ``unexplained`` (a gap
@@ -55,6 +55,7 @@ WALD_Z = 5.0  # a candidate determined this many stderr off its null is not call
 MIN_CLOSED = 0.3  # a named effect closes at least this share of the gap (see _closes)
 HELDOUT_SHARE = 0.5  # ... and, judged by the likelihood, keeps this share of its gain held out
 EXCESS_FLOOR = 3.0  # the excess χ² a share is taken of is at least this many of its chance σ
+MIN_FOLDS_SET_ASIDE = 3  # with fewer folds none is set aside (one would be half the held-out data)
 
 
 @dataclass(frozen=True)
@@ -251,7 +252,7 @@ _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delt
               "closed_fraction", "estimates", "rounds", "heldout_refitted_folds",
               "heldout_unverified_folds", "heldout_error", "heldout_delta_nll", "explained_share",
               "closes", "gap_sigma_before", "gap_sigma_after", "heldout_gap_sigma_before",
-              "heldout_gap_sigma_after")
+              "heldout_gap_sigma_after", "heldout_by_fold", "heldout_set_aside")
 
 
 def _cand_json(c: dict) -> dict:
@@ -364,7 +365,8 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
                 notes.append(f"the current model could not be re-evaluated: {base.get('status')}")
                 rounds.append([base] + skipped)
                 break
-            scored = _score(results, base, opts, len([t for t in tasks if t.effect]))
+            scored = _score(results, base, opts, len([t for t in tasks if t.effect]),
+                            fold_names=[[runs[i].name for i in f] for f in folds])
             rnd = [base] + sorted(scored, key=_rank) + skipped
             rounds.append(rnd)
             chosen, group = _select(scored, base)
@@ -502,7 +504,7 @@ def _starts(eff, nulls, where_hint) -> list:
     return [dict(nulls)] + eff.nudges()
 
 
-def _score(results, base, opts, n_cand) -> list:
+def _score(results, base, opts, n_cand, fold_names=None) -> list:
     """Likelihood ratio, ΔAIC, ΔBIC, confounding and gaps of every candidate against base."""
     out = []
     alpha_c = opts.alpha / max(n_cand, 1)
@@ -540,6 +542,7 @@ def _score(results, base, opts, n_cand) -> list:
         c["heldout_unverified_folds"] = c["heldout"].get("unverified_folds")
         c["heldout_error"] = c["heldout"].get("error")
         c["heldout_delta_nll"] = _heldout_dnll(base["heldout"], c["heldout"])
+        c["heldout_by_fold"], c["heldout_set_aside"] = _heldout_by_fold(base, c, fold_names)
         # the same gaps in noise units (1: at the noise)
         for key, before, after in (("gap_sigma", base["gap"], c["gap"]),
                                    ("heldout_gap_sigma", base["heldout"], c["heldout"])):
@@ -571,6 +574,9 @@ def _score(results, base, opts, n_cand) -> list:
         c["named"] = False
         c["closed_fraction"] = _closed_fraction(c)
         c["explained_share"] = _explained_share(c, base)
+        if c["heldout_set_aside"]:
+            c["heldout_set_aside"]["explained_share"] = _explained_share(
+                dict(delta_nll=c["heldout_set_aside"]["fitted_delta_nll_kept"]), base)
         c["closes"] = _closes(c)
         c["note"] = c["estimate_text"]
         stopped = (f"refit stopped after {c.get('iterations')} iterations in all: even {GIVE_UP_MARGIN:g}× the "
@@ -600,6 +606,42 @@ def _heldout_dnll(before: dict, after: dict) -> float:
     if before.get("unverified_folds") or after.get("unverified_folds"):
         return float("nan")  # a linear prediction the model contradicted is no comparison
     return float(0.5 * (a - b))
+
+
+def _heldout_by_fold(base: dict, c: dict, fold_names=None):
+    """The likelihood gain per fold, fitted and held out, and the fold the naming rule may
+    set aside: ([{runs, fitted_delta_nll, heldout_delta_nll}], set_aside or None).
+
+    The set-aside fold is the one that argues most against the candidate (held-out gain
+    less HELDOUT_SHARE of its fitted gain lowest), with the sums over the other folds and
+    the held-out µm gap before and after without it. :func:`_closes` accepts the
+    likelihood test on all folds or on all but that one, so that one high-leverage run
+    whose prediction fails once it is left out cannot veto an effect every other run
+    confirms. Measured (drift at 5e-8 m/s, the withheld-effect benchmark's 8 runs, at
+    7c7f030): the drift refit is right (4.94e-8 ± 0.03e-8) and keeps its fitted gain held
+    out on 7 runs (2.96e5 held out against 1.45e5 fitted), but on the 2.13 N/m, 20 µN,
+    300 Hz run its held-out χ² is 9.1e5 against 440 fitted, so the sum over all folds kept
+    only 2.4e4 of 2.1e5. Both sums leave that fold out, so a candidate whose gain lies in
+    that one run (a run overfitted) gains nothing from setting it aside."""
+    hb, hc = base["heldout"].get("chi2_by_fold"), c["heldout"].get("chi2_by_fold")
+    fb, fc = base["gap"].get("chi2_by_fold"), c["gap"].get("chi2_by_fold")
+    if (None in (hb, hc, fb, fc) or not len(hb) == len(hc) == len(fb) == len(fc)
+            or not np.isfinite(c.get("heldout_delta_nll", float("nan")))):
+        return [], None
+    h = 0.5 * (np.asarray(hb) - np.asarray(hc))
+    g = 0.5 * (np.asarray(fb) - np.asarray(fc))
+    names = fold_names if fold_names is not None and len(fold_names) == len(h) else [[str(k)] for k in range(len(h))]
+    by_fold = [dict(runs=list(n), fitted_delta_nll=float(gi), heldout_delta_nll=float(hi))
+               for n, gi, hi in zip(names, g, h)]
+    if len(h) < MIN_FOLDS_SET_ASIDE:
+        return by_fold, None
+    j = int(np.argmin(h - HELDOUT_SHARE * g))
+    keep = np.arange(len(h)) != j
+    without = lambda ho: (ho.get("gap_um_without_fold") or [float("nan")] * len(h))[j]  # noqa: E731
+    return by_fold, dict(runs=list(names[j]), fitted_delta_nll=float(g[j]), heldout_delta_nll=float(h[j]),
+                         fitted_delta_nll_kept=float(g[keep].sum()), heldout_delta_nll_kept=float(h[keep].sum()),
+                         heldout_gap_before_um=float(without(base["heldout"])),
+                         heldout_gap_after_um=float(without(c["heldout"])))
 
 
 def _wald(c, eff) -> float:
@@ -656,9 +698,20 @@ def _closes(c) -> bool:
     data, so the first test alone named nothing beside a 10 σ post-slip misfit."""
     if c.get("closed_fraction", 0.0) >= MIN_CLOSED:
         return True
-    ho = c.get("heldout_delta_nll", float("nan"))
-    return bool(c.get("explained_share", 0.0) >= MIN_CLOSED and np.isfinite(ho)
-                and ho >= HELDOUT_SHARE * c["delta_nll"])
+    return _likelihood_closes(c.get("explained_share", 0.0), c.get("heldout_delta_nll", float("nan")),
+                              c["delta_nll"]) or _closes_with_one_aside(c)
+
+
+def _likelihood_closes(share: float, heldout_dnll: float, fitted_dnll: float) -> bool:
+    return bool(share >= MIN_CLOSED and np.isfinite(heldout_dnll) and heldout_dnll >= HELDOUT_SHARE * fitted_dnll)
+
+
+def _closes_with_one_aside(c) -> bool:
+    """The likelihood test on every fold but the one that argues most against the
+    candidate (:func:`_heldout_by_fold`)."""
+    a = c.get("heldout_set_aside")
+    return bool(a) and a["fitted_delta_nll_kept"] > 0 and _likelihood_closes(
+        a.get("explained_share", 0.0), a["heldout_delta_nll_kept"], a["fitted_delta_nll_kept"])
 
 
 def _select(scored, base):
@@ -704,11 +757,26 @@ def _try(best, others):
         why = (f"removes {100 * max(share, 0):.0f} % of the excess χ²" if share < MIN_CLOSED else
                f"keeps {ho:.1f} of its Δnll {best['delta_nll']:.1f} on held-out runs" if np.isfinite(ho) else
                "has no held-out Δnll")
+        a = best.get("heldout_set_aside")
+        if a and share >= MIN_CLOSED:
+            why += (f", {a['heldout_delta_nll_kept']:.1f} of {a['fitted_delta_nll_kept']:.1f} without the run(s) "
+                    f"{', '.join(a['runs'])}")
         best["note"] = (f"significant, but closes {100 * max(best.get('closed_fraction', 0.0), 0):.0f} % of the "
                         f"held-out gap above the noise and {why} (needs {100 * MIN_CLOSED:.0f} % of either, "
-                        f"the second with {100 * HELDOUT_SHARE:.0f} % of its gain held out); " + best["estimate_text"])
+                        f"the second with {100 * HELDOUT_SHARE:.0f} % of its gain held out, on all folds or all "
+                        f"but one); " + best["estimate_text"])
         return None, None
     best["note"] = "added; " + best["estimate_text"]
+    a = best.get("heldout_set_aside")
+    if (best.get("closed_fraction", 0.0) < MIN_CLOSED
+            and not _likelihood_closes(best.get("explained_share", 0.0), best.get("heldout_delta_nll", float("nan")),
+                                       best["delta_nll"])):
+        # named on all folds but one: say which, and what the held-out figures are without it
+        best["note"] += (f" (held out on all folds but {', '.join(a['runs'])}, whose prediction fails once it is "
+                         f"left out: held-out Δnll {a['heldout_delta_nll']:.1f} against {a['fitted_delta_nll']:.1f} "
+                         f"fitted; on the others {a['heldout_delta_nll_kept']:.1f} held out against "
+                         f"{a['fitted_delta_nll_kept']:.1f} fitted, held-out gap "
+                         f"{a['heldout_gap_before_um'] * 1e3:.1f} -> {a['heldout_gap_after_um'] * 1e3:.1f} nm)")
     return best, None
 
 
