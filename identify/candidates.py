@@ -206,9 +206,6 @@ def run_candidate(task: CandidateTask) -> dict:
         info = _confounding(prob, w, ev, task.extra if task.effect else ())
         feats = feature_values(prob, w, r)
         fitted = gap(feats)
-        rows = Layout.of(prob).row_run
-        if task.folds:
-            fitted["chi2_by_fold"] = _chi2_by_fold(r, rows, task.folds)
         heldout = dict(gap_um=float("nan"))
         if task.folds:
             try:
@@ -221,17 +218,22 @@ def run_candidate(task: CandidateTask) -> dict:
                                        "model and not refitted (no test could name this candidate)")
                 feats_ho = feature_values(prob, w, ho.residuals)
                 heldout = gap(feats_ho)
-                # the held-out gap without each fold in turn, for a rule one run cannot decide
-                # (diagnosis._heldout_gain)
-                n_runs = len(prob.runs)
-                heldout["gap_um_without_fold"] = [
-                    gap(feats_ho, runs=[i for i in range(n_runs) if i not in set(f)])["gap_um"] for f in task.folds]
                 # the held-out deviance: every row in its own noise units, as the fit
                 # weighs them (the µm gap weighs features by their size in µm)
                 fin = np.isfinite(ho.residuals)
                 heldout["chi2"] = float(ho.residuals[fin] @ ho.residuals[fin])
-                heldout["chi2_by_fold"] = _chi2_by_fold(ho.residuals, rows, task.folds)
                 heldout["n_rows"] = int(fin.sum())
+                # per fold, fitted and held out, and the held-out gap without each fold in
+                # turn: for a rule one run cannot decide (diagnosis._heldout_by_fold)
+                rows = Layout.of(prob).row_run
+                if rows.size != r.size:
+                    raise RuntimeError(f"residual layout mismatch: {rows.size} rows mapped to runs, {r.size} residuals")
+                heldout["fitted_chi2_by_fold"] = _chi2_by_fold(r, rows, task.folds)
+                heldout["chi2_by_fold"] = _chi2_by_fold(ho.residuals, rows, task.folds)
+                heldout["rows_by_fold"] = [int((np.isin(rows, list(f)) & fin).sum()) for f in task.folds]
+                n_runs = len(prob.runs)
+                heldout["gap_um_without_fold"] = [
+                    gap(feats_ho, runs=[i for i in range(n_runs) if i not in set(f)])["gap_um"] for f in task.folds]
                 heldout["refitted_folds"] = len(ho.refitted)
                 heldout["unverified_folds"] = len(ho.unverified)
             except _NotComputed as why:

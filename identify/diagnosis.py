@@ -14,7 +14,7 @@ it shrinks once that effect is added — on runs the fit did not see (DESIGN.md 
    candidate explains the same residuals as well (nearly parallel residual change and
    |ΔΔAIC| < 10: both are reported as confounded and neither is named), and it closes a
    real part of the gap on held-out runs (:func:`_closes`: of the µm gap, or of the
-   excess χ² with the likelihood gain kept held out, on all folds or on all but the one
+   excess χ² with the likelihood gain kept held out, on all runs or on all but the one
    that argues most against it). Forward selection adds it and tries the rest again.
 4. Verdict: ``adequate`` when the final model's held-out gap is within ``gap_tolerance``
    (1.5×) of the noise floor, or when no feature is significant (Bonferroni over the
@@ -55,7 +55,7 @@ WALD_Z = 5.0  # a candidate determined this many stderr off its null is not call
 MIN_CLOSED = 0.3  # a named effect closes at least this share of the gap (see _closes)
 HELDOUT_SHARE = 0.5  # ... and, judged by the likelihood, keeps this share of its gain held out
 EXCESS_FLOOR = 3.0  # the excess χ² a share is taken of is at least this many of its chance σ
-MIN_FOLDS_SET_ASIDE = 3  # with fewer folds none is set aside (one would be half the held-out data)
+MIN_FOLDS_SET_ASIDE = 5  # one-run folds needed before one may be set aside (the rest must decide)
 
 
 @dataclass(frozen=True)
@@ -609,39 +609,42 @@ def _heldout_dnll(before: dict, after: dict) -> float:
 
 
 def _heldout_by_fold(base: dict, c: dict, fold_names=None):
-    """The likelihood gain per fold, fitted and held out, and the fold the naming rule may
+    """The likelihood gain per fold, fitted and held out, and the run the naming rule may
     set aside: ([{runs, fitted_delta_nll, heldout_delta_nll}], set_aside or None).
 
-    The set-aside fold is the one that argues most against the candidate (held-out gain
-    less HELDOUT_SHARE of its fitted gain lowest), with the sums over the other folds and
-    the held-out µm gap before and after without it. :func:`_closes` accepts the
-    likelihood test on all folds or on all but that one, so that one high-leverage run
-    whose prediction fails once it is left out cannot veto an effect every other run
-    confirms. Measured (drift at 5e-8 m/s, the withheld-effect benchmark's 8 runs, at
-    7c7f030): the drift refit is right (4.94e-8 ± 0.03e-8) and keeps its fitted gain held
-    out on 7 runs (2.96e5 held out against 1.45e5 fitted), but on the 2.13 N/m, 20 µN,
-    300 Hz run its held-out χ² is 9.1e5 against 440 fitted, so the sum over all folds kept
-    only 2.4e4 of 2.1e5. Both sums leave that fold out, so a candidate whose gain lies in
-    that one run (a run overfitted) gains nothing from setting it aside."""
-    hb, hc = base["heldout"].get("chi2_by_fold"), c["heldout"].get("chi2_by_fold")
-    fb, fc = base["gap"].get("chi2_by_fold"), c["gap"].get("chi2_by_fold")
-    if (None in (hb, hc, fb, fc) or not len(hb) == len(hc) == len(fb) == len(fc)
+    With leave-one-run-out and at least MIN_FOLDS_SET_ASIDE runs, the set-aside run is the
+    one that argues most against the candidate (held-out gain less HELDOUT_SHARE of its
+    fitted gain lowest), given with the sums over the other runs and the held-out µm gap
+    before and after without it. :func:`_closes` accepts the likelihood test on all runs
+    or on all but that one, so that one high-leverage run — which the candidate fits
+    better, but cannot predict once it is left out — cannot veto an effect every other
+    run confirms. A run the candidate fits worse contradicts it and is never set aside;
+    both sums leave the run out, so a gain that lies in that one run (a run overfitted)
+    gains nothing from it. Measured (drift at 5e-8 m/s, the withheld-effect benchmark's
+    8 runs, at 7c7f030): the drift refit is right (4.94e-8 ± 0.03e-8 m/s) and keeps its
+    gain held out on 7 runs (2.96e5 held out against 1.45e5 fitted); on the 2.13 N/m,
+    20 µN, 300 Hz run its fitted χ² falls from 1.25e5 to 440 but its held-out χ² is 9.1e5,
+    so the sum over all runs kept only 2.4e4 of 2.1e5."""
+    ho_b, ho_c = base["heldout"], c["heldout"]
+    keys = ("chi2_by_fold", "fitted_chi2_by_fold", "rows_by_fold")
+    if (any(k not in ho_b or k not in ho_c for k in keys) or ho_b["rows_by_fold"] != ho_c["rows_by_fold"]
             or not np.isfinite(c.get("heldout_delta_nll", float("nan")))):
         return [], None
-    h = 0.5 * (np.asarray(hb) - np.asarray(hc))
-    g = 0.5 * (np.asarray(fb) - np.asarray(fc))
-    names = fold_names if fold_names is not None and len(fold_names) == len(h) else [[str(k)] for k in range(len(h))]
+    h = 0.5 * (np.asarray(ho_b["chi2_by_fold"]) - np.asarray(ho_c["chi2_by_fold"]))
+    g = 0.5 * (np.asarray(ho_b["fitted_chi2_by_fold"]) - np.asarray(ho_c["fitted_chi2_by_fold"]))
+    names = fold_names if fold_names is not None and len(fold_names) == len(h) else [[f"fold {k}"] for k in range(len(h))]
     by_fold = [dict(runs=list(n), fitted_delta_nll=float(gi), heldout_delta_nll=float(hi))
                for n, gi, hi in zip(names, g, h)]
-    if len(h) < MIN_FOLDS_SET_ASIDE:
+    if len(h) < MIN_FOLDS_SET_ASIDE or any(len(n) != 1 for n in names):
         return by_fold, None
     j = int(np.argmin(h - HELDOUT_SHARE * g))
+    if g[j] < 0:  # a run fitted worse with the candidate argues against it in the fit too
+        return by_fold, None
     keep = np.arange(len(h)) != j
     without = lambda ho: (ho.get("gap_um_without_fold") or [float("nan")] * len(h))[j]  # noqa: E731
     return by_fold, dict(runs=list(names[j]), fitted_delta_nll=float(g[j]), heldout_delta_nll=float(h[j]),
                          fitted_delta_nll_kept=float(g[keep].sum()), heldout_delta_nll_kept=float(h[keep].sum()),
-                         heldout_gap_before_um=float(without(base["heldout"])),
-                         heldout_gap_after_um=float(without(c["heldout"])))
+                         heldout_gap_before_um=float(without(ho_b)), heldout_gap_after_um=float(without(ho_c)))
 
 
 def _wald(c, eff) -> float:
@@ -759,11 +762,11 @@ def _try(best, others):
                "has no held-out Δnll")
         a = best.get("heldout_set_aside")
         if a and share >= MIN_CLOSED:
-            why += (f", {a['heldout_delta_nll_kept']:.1f} of {a['fitted_delta_nll_kept']:.1f} without the run(s) "
-                    f"{', '.join(a['runs'])}")
+            why += (f"; without the run {', '.join(a['runs'])} it removes {100 * max(a['explained_share'], 0):.0f} % "
+                    f"and keeps {a['heldout_delta_nll_kept']:.1f} of {a['fitted_delta_nll_kept']:.1f}")
         best["note"] = (f"significant, but closes {100 * max(best.get('closed_fraction', 0.0), 0):.0f} % of the "
                         f"held-out gap above the noise and {why} (needs {100 * MIN_CLOSED:.0f} % of either, "
-                        f"the second with {100 * HELDOUT_SHARE:.0f} % of its gain held out, on all folds or all "
+                        f"the second with {100 * HELDOUT_SHARE:.0f} % of its gain held out, on all runs or all "
                         f"but one); " + best["estimate_text"])
         return None, None
     best["note"] = "added; " + best["estimate_text"]
@@ -772,11 +775,12 @@ def _try(best, others):
             and not _likelihood_closes(best.get("explained_share", 0.0), best.get("heldout_delta_nll", float("nan")),
                                        best["delta_nll"])):
         # named on all folds but one: say which, and what the held-out figures are without it
-        best["note"] += (f" (held out on all folds but {', '.join(a['runs'])}, whose prediction fails once it is "
-                         f"left out: held-out Δnll {a['heldout_delta_nll']:.1f} against {a['fitted_delta_nll']:.1f} "
-                         f"fitted; on the others {a['heldout_delta_nll_kept']:.1f} held out against "
-                         f"{a['fitted_delta_nll_kept']:.1f} fitted, held-out gap "
-                         f"{a['heldout_gap_before_um'] * 1e3:.1f} -> {a['heldout_gap_after_um'] * 1e3:.1f} nm)")
+        gaps = (f", held-out gap {a['heldout_gap_before_um'] * 1e3:.1f} -> {a['heldout_gap_after_um'] * 1e3:.1f} nm"
+                if np.isfinite(a["heldout_gap_before_um"]) and np.isfinite(a["heldout_gap_after_um"]) else "")
+        best["note"] += (f" (held out on every run but {', '.join(a['runs'])}, which it fits better but cannot "
+                         f"predict once it is left out: held-out Δnll {a['heldout_delta_nll']:.1f} against "
+                         f"{a['fitted_delta_nll']:.1f} fitted; on the others {a['heldout_delta_nll_kept']:.1f} held "
+                         f"out against {a['fitted_delta_nll_kept']:.1f} fitted{gaps})")
     return best, None
 
 
