@@ -590,3 +590,21 @@ def test_held_out_gain_and_excess_share_edge_cases():
     # a model at the noise: the share is of the chance spread, not of a near-zero excess
     base = dict(chi2=10742.0 + 5.0, n_obs=10769, n_eff=27)
     assert _explained_share(dict(delta_nll=6.0), base) == pytest.approx(12.0 / (3 * np.sqrt(2 * 10742)))
+
+
+def test_a_named_effect_ends_the_diagnosis_without_measuring_it_twice():
+    """A load offset on four short runs, the only candidate: named in round 1; with nothing
+    left to try, the final model is that refit (its held-out folds are not refitted again)."""
+    from identify.withheld import QUICK_CONDITIONS, withheld_dataset
+
+    conds = [c for c in QUICK_CONDITIONS if (c[0], c[1], c[2]) in
+             {(2.13, 5.0, 100.0), (2.13, 10.0, 100.0), (20.3, 30.0, 30.0), (20.3, 60.0, 100.0)}]
+    traces = withheld_dataset("load_offset", conditions=conds, base={"A": 0.015})
+    res = diagnose(traces, fit_options=OPTS, options=DiagnosisOptions(effects=("load_offset",)))
+    assert res.effects == ["load_offset"], res.report()
+    c = res.candidates[0]
+    assert c["named"] and res.timing["refits"] == 2  # the baseline and the candidate, once each
+    assert len(res.rounds) == 2 and [x for x in res.rounds[1] if x.get("effect")] == []
+    assert res.final["heldout_gap_um"] == c["heldout_gap_after_um"] < c["heldout_gap_before_um"]
+    assert res.final["values"]["load_offset"] == pytest.approx(c["estimates"]["load_offset"]["value"])
+    assert "round 2" in res.report()
