@@ -718,8 +718,12 @@ def _closes_with_one_aside(c) -> bool:
     """The likelihood test on every fold but the one that argues most against the
     candidate (:func:`_heldout_by_fold`)."""
     a = c.get("heldout_set_aside")
-    return bool(a) and a["fitted_delta_nll_kept"] > 0 and _likelihood_closes(
-        a.get("explained_share", 0.0), a["heldout_delta_nll_kept"], a["fitted_delta_nll_kept"])
+    # the set-aside relaxes how much of the gain the held-out runs must keep, never whether
+    # they are predicted better in all: measured on the out-of-library set (each run's load
+    # ±15 % off, at d54fbfe), the spring nonlinearity kept 4611 of 7365 without the 10 Hz
+    # run, but its held-out Δnll over all runs was −4997, and it was named
+    return bool(a) and a["fitted_delta_nll_kept"] > 0 and c.get("heldout_delta_nll", float("nan")) > 0 \
+        and _likelihood_closes(a.get("explained_share", 0.0), a["heldout_delta_nll_kept"], a["fitted_delta_nll_kept"])
 
 
 def _select(scored, base):
