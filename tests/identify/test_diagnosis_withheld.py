@@ -50,16 +50,7 @@ DAMPING_ABSORBED = pytest.mark.xfail(strict=True, reason=(
     "noise 21 nm): the baseline's velocity strengthening A absorbs it; verdict adequate, p = 0.98"))
 
 
-DRIFT_NOT_NAMED = pytest.mark.xfail(strict=True, reason=(
-    "measured at 17840f2 and again at 7c7f030: the drift refit is right (4.94e-8 ± 0.03e-8 m/s, truth "
-    "5e-8; Δnll 2.1e5) but keeps only 2.4e4 of its Δnll on held-out runs and closes 4 % of the held-out "
-    "gap, so the naming rule of d805928 does not name it: verdict unexplained. Per fold (7c7f030), the "
-    "drift model's held-out χ² is within 10 % of its fitted χ² on 6 of the 8 runs; on the 2.13 N/m, "
-    "20 µN, 300 Hz run it is 9.1e5 against 440, where leaving the run out moves A and the drift by 8 % and "
-    "7 % of their scales: one run's held-out prediction decides the sum (README, Limits found)"))
-
-
-@pytest.mark.parametrize("eid", [pytest.param("drift", marks=DRIFT_NOT_NAMED),
+@pytest.mark.parametrize("eid", ["drift",  # named since d54fbfe (README: one run set aside)
                                  "step_size",
                                  pytest.param("damping", marks=DAMPING_ABSORBED), "load_offset",
                                  "spring_nonlinearity"])
