@@ -81,6 +81,11 @@ class DiagnosisOptions:
         A model whose held-out gap (RMS feature misfit) is within this factor of the noise
         floor is ``adequate`` even when a feature test is formally significant: the
         trigger encoding itself leaves up to 1.24× on data made by the model (README).
+    resequence : bool
+        Once an effect is named, decide the mode sequence again with it
+        (:func:`identify.fit.decide_sequence`): the baseline's sequence was decided by a
+        model without the effect and may have been bent to absorb it (inserted slips,
+        moved triggers), which the model with the effect then misfits.
     """
 
     effects: Any = "all"
@@ -92,6 +97,7 @@ class DiagnosisOptions:
     seed: int = 0
     max_iter: int = 20
     gap_tolerance: float = 1.5
+    resequence: bool = True
 
     def __post_init__(self):
         ids = tuple(EFFECTS) if self.effects in ("all", None) else tuple(self.effects)
@@ -360,11 +366,16 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
                 results.append(res)
             n_refits += len(tasks)
             base = next(r for r in results if r["effect"] is None)
-            final_res = base  # the current model, measured in this round
             if not base.get("ok"):
                 notes.append(f"the current model could not be re-evaluated: {base.get('status')}")
                 rounds.append([base] + skipped)
+                if final_res is not None:  # the named candidate's numbers, on the sequence it was named on
+                    notes.append("the gaps after are the last named candidate's, on the mode sequence it was "
+                                 "named on")
+                else:
+                    final_res = base
                 break
+            final_res = base  # the current model, measured in this round
             scored = _score(results, base, opts, len([t for t in tasks if t.effect]),
                             fold_names=[[runs[i].name for i in f] for f in folds])
             rnd = [base] + sorted(scored, key=_rank) + skipped
@@ -388,7 +399,14 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
             say(f"added {chosen['effect']} ({', '.join(eff.parameters) or eff.law}); trying the rest again")
             if len(effects) >= opts.max_effects:
                 remaining = []
-            if not remaining:
+            changed = False
+            if opts.resequence:
+                try:
+                    current, runs, changed = _resequence(current, runs, fopts, prob, say)
+                except Exception as err:  # the named model stands with the baseline's sequence
+                    notes.append(f"deciding the mode sequence again with {chosen['effect']} failed: "
+                                 f"{type(err).__name__}: {err}")
+            if not remaining and not changed:
                 # nothing left to try: the final model is this candidate's refit, already
                 # measured on the same folds (a round of it alone refitted every held-out
                 # fold again: 8 exact refits, ~10 min, on the drift data), and no candidate
@@ -793,6 +811,42 @@ def _try(best, others):
     return best, None
 
 
+def _resequence(current, runs, fopts, prob0, say):
+    """The current model's mode sequence decided again (:func:`identify.fit.decide_sequence`),
+    from its solution: (current, runs, changed). Unchanged when no change to the sequence
+    lowers χ²; else the runs carry the new triggers and the next round measures the model
+    with them (the named candidate's scores stand: they were its evidence against the
+    model without it, on the same sequence)."""
+    from .fit import decide_sequence
+
+    p, w = _rebuild(current, runs, fopts, prob0)
+    r0 = p.residuals(w)
+    f0 = 0.5 * float(r0 @ r0)
+    # χ² above its expectation: comparable across sequences, which leave frames in or out
+    excess = lambda q, r: float(r @ r) + q.chi2_constant() - q.n_observations()  # noqa: E731
+    say(f"deciding the mode sequence again with {', '.join(p.theta.names)} free")
+    p.progress = say
+    best = dict(w=np.asarray(w, float), f=f0, iterations=0, wall_s=0.0, success=True, status="named")
+    values = dict(current["values"])
+    try:
+        p2, sol = decide_sequence(p, best, p.model, values, p.opts, say)
+    finally:
+        p.progress = None
+    p2.progress = None
+    r = p2.residuals(sol["w"])
+    differs = len(p2.runs) != len(runs) or any(
+        not np.array_equal(a.trigger_steps, b.trigger_steps) for a, b in zip(p2.runs, runs))
+    if not differs or not (np.all(np.isfinite(r)) and excess(p2, r) < excess(p, r0)):
+        say("  the mode sequence stands")
+        return current, runs, False
+    values.update(zip(p2.theta.names, (float(v) for v in p2.theta.from_scaled(sol["w"][: p2.n_theta]))))
+    say(f"  {sol['triggers_moved']} trigger(s) moved, {sol['slips_inserted']} slip(s) inserted, "
+        f"{sol['slips_removed']} removed: χ² {2 * f0 + p.chi2_constant():.6g} -> {float(r @ r) + p2.chi2_constant():.6g}")
+    new = dict(current, values=values, w=sol["w"], ev_M=np.array(p2.ev_M), n_theta=p2.n_theta,
+               chi2=float(r @ r) + p2.chi2_constant(), n_eff=p2.n_effective())
+    return new, list(p2.runs), True
+
+
 def _rebuild(current, runs, fopts, prob0):
     """The current model's NLP in this process (for the final 'where')."""
     from dataclasses import replace
@@ -801,7 +855,8 @@ def _rebuild(current, runs, fopts, prob0):
     from .model import Model
     from .nlp import Problem
 
-    if tuple(current["free"]) == tuple(prob0.theta.names) and current["law"] == prob0.law.name:
+    same_runs = len(runs) == len(prob0.runs) and all(a is b for a, b in zip(runs, prob0.runs))
+    if tuple(current["free"]) == tuple(prob0.theta.names) and current["law"] == prob0.law.name and same_runs:
         return prob0, current["w"]
     bounds = {**dict(fopts.bounds), **current.get("bounds", {})}
     opts = replace(fopts, free=tuple(current["free"]), law=current["law"], fixed={}, start={},

@@ -26,7 +26,7 @@ from .params import parameter_set, spec
 from .rundata import RunData, _run_data
 from .sequence import _ambiguous_triggers, _misfit_triggers, _with_triggers
 
-__all__ = ["FitOptions", "fit", "FitError", "RunData", "prepare_runs"]
+__all__ = ["FitOptions", "fit", "FitError", "RunData", "prepare_runs", "decide_sequence"]
 
 log = logging.getLogger(__name__)
 
@@ -277,6 +277,62 @@ def _start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict
 SUSPECT_REDCHI = 2.0  # a solution's reduced χ² above which the fit tries another start
 
 
+def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_start: dict | None = None):
+    """The mode sequence decided against the model from a solution ``best`` of ``prob``:
+    triggers the model places a step or two off moved (the frames taken while the block
+    moved left out), missed slips inserted, then the detector's ambiguous triggers and
+    whatever still misfits tried (:mod:`identify.sequence`), each change re-solved.
+    Returns (problem, solution) with the counts in ``triggers_moved``, ``slips_inserted``
+    and ``slips_removed``. ``fresh_start`` (parameter values): after inserting slips, also
+    solve afresh from the staged start of those values (:func:`fit` passes its start).
+    The diagnosis calls it again for a model with a named effect, whose sequence the
+    baseline had bent to absorb the effect."""
+    # the mode sequence: move triggers the model places a step or two off, and leave
+    # out the frames taken while the block moved; re-solve until nothing moves
+    # (a slip the detection missed is inserted where the model predicts it and the
+    # frames show it, once no trigger moves any more)
+    refined = inserted = 0
+    for round_ in range(6):
+        changes, n_moved = prob.refine_triggers(best["w"])
+        n_added = 0
+        if n_moved == 0:
+            changes, n_added = missed_slips(prob, best["w"])
+        if round_ > 0 and n_moved + n_added == 0:
+            break
+        refined += n_moved
+        inserted += n_added
+        say(f"mode sequence: {n_moved} slip trigger(s) moved, {n_added} missed slip(s) inserted; re-solving")
+        prob, w_next = _with_triggers(prob, best["w"], changes, model, values, opts, say)
+        sol = prob.solve(w_next)
+        if n_added and opts.staged_start and fresh_start is not None:
+            # a missed slip bends the first solution (and the staged start made from
+            # the merged plateaus) far off: start afresh from the repaired sequence too
+            from .start import staged_start
+
+            try:
+                fresh, _ = staged_start(prob, fresh_start, seed=opts.seed or 0)
+                afresh = prob.solve(prob.initial_w(fresh))
+            except Exception as err:  # the warm solution stands
+                log.info("fresh start after inserting slips failed: %s", err)
+                afresh = dict(f=np.inf, iterations=0, wall_s=0.0)
+            both_it, both_s = sol["iterations"] + afresh["iterations"], sol["wall_s"] + afresh["wall_s"]
+            sol = min((sol, afresh), key=lambda r: r["f"] if np.isfinite(r["f"]) else np.inf)
+            sol["iterations"], sol["wall_s"] = both_it, both_s
+        sol["iterations"] += best["iterations"]
+        sol["wall_s"] += best["wall_s"]
+        best = sol
+    # then the detector's ambiguous triggers, against the repaired sequence (tried before
+    # it, on merged slips, they moved correct triggers: calibration seeds 1 and 4)
+    # (its kept changes are solved at held parameters; the misfit pass solves them jointly)
+    prob, best, n_alt = _ambiguous_triggers(prob, best, model, values, opts, say)
+    # last, whatever the local scores and the detector left where the model's triggers misfit
+    prob, best, n_seq = _misfit_triggers(prob, best, model, values, opts, say, unsolved=n_alt > 0)
+    best["triggers_moved"] = refined + n_alt + n_seq["moved"]
+    best["slips_inserted"] = inserted + n_seq["inserted"]
+    best["slips_removed"] = n_seq["removed"]
+    return prob, best
+
+
 def _suspect(prob, res) -> str:
     """Why a solution looks wrong ('' if it does not): the solver did not converge, or
     the frames' noise does not explain it (reduced χ² > SUSPECT_REDCHI)."""
@@ -420,49 +476,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
             best, start = results[-1], other[0]  # the report's init: where the kept solve began
     if not np.isfinite(best["f"]):
         raise FitError("every solver start failed: " + "; ".join(r["status"] for r in results))
-    # the mode sequence: move triggers the model places a step or two off, and leave
-    # out the frames taken while the block moved; re-solve until nothing moves
-    # (a slip the detection missed is inserted where the model predicts it and the
-    # frames show it, once no trigger moves any more)
-    refined = inserted = 0
-    for round_ in range(6):
-        changes, n_moved = prob.refine_triggers(best["w"])
-        n_added = 0
-        if n_moved == 0:
-            changes, n_added = missed_slips(prob, best["w"])
-        if round_ > 0 and n_moved + n_added == 0:
-            break
-        refined += n_moved
-        inserted += n_added
-        say(f"mode sequence: {n_moved} slip trigger(s) moved, {n_added} missed slip(s) inserted; re-solving")
-        prob, w_next = _with_triggers(prob, best["w"], changes, model, values, opts, say)
-        sol = prob.solve(w_next)
-        if n_added and opts.staged_start:
-            # a missed slip bends the first solution (and the staged start made from
-            # the merged plateaus) far off: start afresh from the repaired sequence too
-            from .start import staged_start
-
-            try:
-                fresh, _ = staged_start(prob, start_given, seed=opts.seed or 0)
-                afresh = prob.solve(prob.initial_w(fresh))
-            except Exception as err:  # the warm solution stands
-                log.info("fresh start after inserting slips failed: %s", err)
-                afresh = dict(f=np.inf, iterations=0, wall_s=0.0)
-            both_it, both_s = sol["iterations"] + afresh["iterations"], sol["wall_s"] + afresh["wall_s"]
-            sol = min((sol, afresh), key=lambda r: r["f"] if np.isfinite(r["f"]) else np.inf)
-            sol["iterations"], sol["wall_s"] = both_it, both_s
-        sol["iterations"] += best["iterations"]
-        sol["wall_s"] += best["wall_s"]
-        best = sol
-    # then the detector's ambiguous triggers, against the repaired sequence (tried before
-    # it, on merged slips, they moved correct triggers: calibration seeds 1 and 4)
-    # (its kept changes are solved at held parameters; the misfit pass solves them jointly)
-    prob, best, n_alt = _ambiguous_triggers(prob, best, model, values, opts, say)
-    # last, whatever the local scores and the detector left where the model's triggers misfit
-    prob, best, n_seq = _misfit_triggers(prob, best, model, values, opts, say, unsolved=n_alt > 0)
-    best["triggers_moved"] = refined + n_alt + n_seq["moved"]
-    best["slips_inserted"] = inserted + n_seq["inserted"]
-    best["slips_removed"] = n_seq["removed"]
+    prob, best = decide_sequence(prob, best, model, values, opts, say, fresh_start=start_given)
     say("covariance")
     prob.progress = None  # the result keeps the problem; the caller's callback is not its business
     result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,

@@ -592,17 +592,26 @@ def test_held_out_gain_and_excess_share_edge_cases():
     assert _explained_share(dict(delta_nll=6.0), base) == pytest.approx(12.0 / (3 * np.sqrt(2 * 10742)))
 
 
-def test_a_named_effect_ends_the_diagnosis_without_measuring_it_twice():
-    """A load offset on four short runs, the only candidate: named in round 1; with nothing
-    left to try, the final model is that refit (its held-out folds are not refitted again)."""
+@pytest.fixture(scope="module")
+def offset_baseline():
+    """A load offset (2 µN) on four short runs, fitted without it."""
     from identify.withheld import QUICK_CONDITIONS, withheld_dataset
 
     conds = [c for c in QUICK_CONDITIONS if (c[0], c[1], c[2]) in
              {(2.13, 5.0, 100.0), (2.13, 10.0, 100.0), (20.3, 30.0, 30.0), (20.3, 60.0, 100.0)}]
-    traces = withheld_dataset("load_offset", conditions=conds, base={"A": 0.015})
-    res = diagnose(traces, fit_options=OPTS, options=DiagnosisOptions(effects=("load_offset",)))
+    return identify.fit(withheld_dataset("load_offset", conditions=conds, base={"A": 0.015}), options=OPTS)
+
+
+def test_a_named_effect_ends_the_diagnosis_without_measuring_it_twice(offset_baseline):
+    """A load offset on four short runs, the only candidate: named in round 1; with nothing
+    left to try, the final model is that refit (its held-out folds are not refitted again)."""
+    said = []
+    res = diagnose(None, baseline=offset_baseline, options=DiagnosisOptions(effects=("load_offset",)),
+                   progress=said.append)
     assert res.effects == ["load_offset"], res.report()
     c = res.candidates[0]
+    # the sequence was decided again with the offset, and stood (the baseline's was right)
+    assert any("deciding the mode sequence again" in m for m in said) and "  the mode sequence stands" in said
     assert c["named"] and res.timing["refits"] == 2  # the baseline and the candidate, once each
     assert len(res.rounds) == 2 and [x for x in res.rounds[1] if x.get("effect")] == []
     assert res.final["heldout_gap_um"] == c["heldout_gap_after_um"] < c["heldout_gap_before_um"]
@@ -624,3 +633,40 @@ def test_a_candidate_that_predicts_the_held_out_runs_worse_in_all_is_not_named()
     assert a["runs"] == ["run4"] and a["heldout_delta_nll_kept"] == pytest.approx(4611.4)
     assert a["fitted_delta_nll_kept"] == pytest.approx(7364.8) and c["heldout_delta_nll"] < 0
     assert not _closes(c)
+
+
+def test_a_sequence_decided_again_is_measured_in_a_final_round(offset_baseline, monkeypatch):
+    """When the named model's mode sequence changes, a final round measures it with the
+    new runs (its held-out gap is the verdict's), not the named candidate's numbers."""
+    import copy
+
+    import identify.diagnosis as dg
+
+    new_runs = []
+
+    def changed(current, runs, fopts, prob0, say):
+        assert "load_offset" in current["free"]
+        new_runs[:] = [copy.copy(r) for r in runs]
+        return dict(current), list(new_runs), True
+
+    monkeypatch.setattr(dg, "_resequence", changed)
+    res = diagnose(None, baseline=offset_baseline, options=DiagnosisOptions(effects=("load_offset",)))
+    assert res.effects == ["load_offset"] and new_runs
+    assert res.timing["refits"] == 3 and len(res.rounds) == 2
+    final = res.rounds[-1][0]
+    assert final["effect"] is None and final is not res.candidates[0]
+    assert res.final["heldout_gap_um"] == final["heldout"]["gap_um"]
+    assert all(a is b for a, b in zip(res.final_problem.runs, new_runs))
+
+
+def test_a_sequence_that_cannot_be_decided_again_leaves_the_named_model(offset_baseline, monkeypatch):
+    import identify.diagnosis as dg
+
+    def broken(current, runs, fopts, prob0, say):
+        raise RuntimeError("no arcs")
+
+    monkeypatch.setattr(dg, "_resequence", broken)
+    res = diagnose(None, baseline=offset_baseline, options=DiagnosisOptions(effects=("load_offset",), folds=2))
+    assert res.effects == ["load_offset"] and res.timing["refits"] == 2
+    assert any("deciding the mode sequence again with load_offset failed: RuntimeError: no arcs" in n
+               for n in res.notes)
