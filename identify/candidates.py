@@ -232,8 +232,9 @@ def run_candidate(task: CandidateTask) -> dict:
                 heldout["chi2_by_fold"] = _chi2_by_fold(ho.residuals, rows, task.folds)
                 heldout["rows_by_fold"] = [int((np.isin(rows, list(f)) & fin).sum()) for f in task.folds]
                 n_runs = len(prob.runs)
-                heldout["gap_um_without_fold"] = [
-                    gap(feats_ho, runs=[i for i in range(n_runs) if i not in set(f)])["gap_um"] for f in task.folds]
+                without = [gap(feats_ho, runs=[i for i in range(n_runs) if i not in set(f)]) for f in task.folds]
+                heldout["gap_um_without_fold"] = [x["gap_um"] for x in without]
+                heldout["noise_um_without_fold"] = [x["noise_um"] for x in without]
                 heldout["refitted_folds"] = len(ho.refitted)
                 heldout["unverified_folds"] = len(ho.unverified)
             except _NotComputed as why:

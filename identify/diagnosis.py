@@ -258,7 +258,8 @@ _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delt
               "closed_fraction", "estimates", "rounds", "heldout_refitted_folds",
               "heldout_unverified_folds", "heldout_error", "heldout_delta_nll", "explained_share",
               "closes", "gap_sigma_before", "gap_sigma_after", "heldout_gap_sigma_before",
-              "heldout_gap_sigma_after", "heldout_by_fold", "heldout_set_aside")
+              "heldout_gap_sigma_after", "heldout_by_fold", "heldout_set_aside", "at_floor",
+              "heldout_gap_ratio_before")
 
 
 def _cand_json(c: dict) -> dict:
@@ -596,6 +597,10 @@ def _score(results, base, opts, n_cand, fold_names=None) -> list:
             if n in c["estimates"])
         c["named"] = False
         c["closed_fraction"] = _closed_fraction(c)
+        # the held-out gap at the encoding's floor (as the verdict's tolerance reads it)
+        noise = base["gap"].get("noise_um", 0.0)
+        c["heldout_gap_ratio_before"] = float(c["heldout_gap_before_um"] / noise) if noise > 0 else float("nan")
+        c["at_floor"] = bool(c["heldout_gap_ratio_before"] <= opts.gap_tolerance)
         c["explained_share"] = _explained_share(c, base)
         if c["heldout_set_aside"]:
             c["heldout_set_aside"]["explained_share"] = _explained_share(
@@ -664,10 +669,14 @@ def _heldout_by_fold(base: dict, c: dict, fold_names=None):
     if g[j] < 0:  # a run fitted worse with the candidate argues against it in the fit too
         return by_fold, None
     keep = np.arange(len(h)) != j
-    without = lambda ho: (ho.get("gap_um_without_fold") or [float("nan")] * len(h))[j]  # noqa: E731
-    return by_fold, dict(runs=list(names[j]), fitted_delta_nll=float(g[j]), heldout_delta_nll=float(h[j]),
-                         fitted_delta_nll_kept=float(g[keep].sum()), heldout_delta_nll_kept=float(h[keep].sum()),
-                         heldout_gap_before_um=float(without(ho_b)), heldout_gap_after_um=float(without(ho_c)))
+    without = lambda ho, key: (ho.get(key) or [float("nan")] * len(h))[j]  # noqa: E731
+    a = dict(runs=list(names[j]), fitted_delta_nll=float(g[j]), heldout_delta_nll=float(h[j]),
+             fitted_delta_nll_kept=float(g[keep].sum()), heldout_delta_nll_kept=float(h[keep].sum()),
+             heldout_gap_before_um=float(without(ho_b, "gap_um_without_fold")),
+             heldout_gap_after_um=float(without(ho_c, "gap_um_without_fold")),
+             noise_um=float(without(ho_b, "noise_um_without_fold")))
+    a["closed_fraction"] = _closed_share(a["heldout_gap_before_um"], a["heldout_gap_after_um"], a["noise_um"])
+    return by_fold, a
 
 
 def _wald(c, eff) -> float:
@@ -691,9 +700,14 @@ def _fmt(e: dict) -> str:
 
 def _closed_fraction(c) -> float:
     """Share of the held-out gap above the noise floor that the candidate closes."""
-    noise = c.get("gap", {}).get("noise_um", 0.0)
-    ex = lambda g: math.sqrt(max(g * g - noise * noise, 0.0))  # noqa: E731
-    before, after = ex(c["heldout_gap_before_um"]), ex(c["heldout_gap_after_um"])
+    return _closed_share(c["heldout_gap_before_um"], c["heldout_gap_after_um"], c.get("gap", {}).get("noise_um", 0.0))
+
+
+def _closed_share(before_um: float, after_um: float, noise_um: float) -> float:
+    if not (np.isfinite(before_um) and np.isfinite(after_um) and np.isfinite(noise_um)):
+        return 0.0
+    ex = lambda g: math.sqrt(max(g * g - noise_um * noise_um, 0.0))  # noqa: E731
+    before, after = ex(before_um), ex(after_um)
     return (before - after) / before if before > 0 else 0.0
 
 
@@ -715,33 +729,47 @@ def _explained_share(c, base) -> float:
 def _closes(c) -> bool:
     """Whether a candidate closes a real part of the gap, not only a formal one: at least
     MIN_CLOSED of the held-out µm gap above the noise; or, where that gap sits at the
-    encoding's own floor, at least MIN_CLOSED of the current model's excess χ² on the
-    fitted runs with at least HELDOUT_SHARE of that likelihood gain kept on the held-out
-    runs. Measured (velocity strengthening at A = 0.0045 against a baseline fixing A = 0,
-    the withheld-effect benchmark's 8 runs): p = 6e-54, Δnll 120 fitted and 142 held out,
-    yet the held-out µm gap went 20.5 → 21.2 nm (noise 15.0 nm): the µm gap pools the
-    features by their size in µm and sat at the 1.2–1.4× the encoding leaves on model-made
-    data, so the first test alone named nothing beside a 10 σ post-slip misfit."""
+    encoding's own floor (within ``gap_tolerance`` of the noise: ``c["at_floor"]``), at
+    least MIN_CLOSED of the current model's excess χ² on the fitted runs with at least
+    HELDOUT_SHARE of that likelihood gain kept on the held-out runs. Either on all runs,
+    or on all but the one run that argues most against the candidate
+    (:func:`_heldout_by_fold`). Measured (velocity strengthening at A = 0.0045 against a
+    baseline fixing A = 0, the withheld-effect benchmark's 8 runs): p = 6e-54, Δnll 120
+    fitted and 142 held out, yet the held-out µm gap went 20.5 → 21.2 nm (noise 15.0 nm):
+    the µm gap pools the features by their size in µm and sat at the 1.2–1.4× the
+    encoding leaves on model-made data, so the first test alone named nothing beside a
+    10 σ post-slip misfit. Away from that floor the µm gap is the measure: on the
+    out-of-library set (each run's load ±15 % off, at d6efe11) a load offset removed 37 %
+    of the excess χ² and kept all of it held out, and was named, while the held-out gap
+    (4.8× the noise) went 92.2 → 89.9 nm."""
     if c.get("closed_fraction", 0.0) >= MIN_CLOSED:
         return True
+    a = _set_aside_usable(c)
+    if a and a.get("closed_fraction", 0.0) >= MIN_CLOSED:
+        return True
+    if not c.get("at_floor", False):
+        return False
     return _likelihood_closes(c.get("explained_share", 0.0), c.get("heldout_delta_nll", float("nan")),
-                              c["delta_nll"]) or _closes_with_one_aside(c)
+                              c["delta_nll"]) or bool(a and _likelihood_closes(
+                                  a.get("explained_share", 0.0), a["heldout_delta_nll_kept"],
+                                  a["fitted_delta_nll_kept"]))
 
 
 def _likelihood_closes(share: float, heldout_dnll: float, fitted_dnll: float) -> bool:
     return bool(share >= MIN_CLOSED and np.isfinite(heldout_dnll) and heldout_dnll >= HELDOUT_SHARE * fitted_dnll)
 
 
-def _closes_with_one_aside(c) -> bool:
-    """The likelihood test on every fold but the one that argues most against the
-    candidate (:func:`_heldout_by_fold`)."""
+def _set_aside_usable(c):
+    """The run set aside (:func:`_heldout_by_fold`), if the rule may leave it out: the
+    candidate gains on the other runs and its held-out Δnll over all runs is positive —
+    the set-aside relaxes how much of the gain must be kept held out, never whether the
+    held-out runs are predicted better in all (measured on the out-of-library set at
+    d54fbfe: the spring nonlinearity kept 4611 of 7365 without the 10 Hz run, −4997 over
+    all runs, and was named)."""
     a = c.get("heldout_set_aside")
-    # the set-aside relaxes how much of the gain the held-out runs must keep, never whether
-    # they are predicted better in all: measured on the out-of-library set (each run's load
-    # ±15 % off, at d54fbfe), the spring nonlinearity kept 4611 of 7365 without the 10 Hz
-    # run, but its held-out Δnll over all runs was −4997, and it was named
-    return bool(a) and a["fitted_delta_nll_kept"] > 0 and c.get("heldout_delta_nll", float("nan")) > 0 \
-        and _likelihood_closes(a.get("explained_share", 0.0), a["heldout_delta_nll_kept"], a["fitted_delta_nll_kept"])
+    if a and a["fitted_delta_nll_kept"] > 0 and c.get("heldout_delta_nll", float("nan")) > 0:
+        return a
+    return None
 
 
 def _select(scored, base):
@@ -782,26 +810,32 @@ def _try(best, others):
     if not str(best.get("status", "")).startswith(("Solve_Succeeded", STALLED)):
         best["note"] = f"significant but its refit did not converge ({best['status']}); " + best["estimate_text"]
         return None, None
+    a = _set_aside_usable(best)
     if not best.get("closes"):
         share, ho = best.get("explained_share", 0.0), best.get("heldout_delta_nll", float("nan"))
-        why = (f"removes {100 * max(share, 0):.0f} % of the excess χ²" if share < MIN_CLOSED else
-               f"keeps {ho:.1f} of its Δnll {best['delta_nll']:.1f} on held-out runs" if np.isfinite(ho) else
-               "has no held-out Δnll")
-        a = best.get("heldout_set_aside")
-        if a and share >= MIN_CLOSED:
-            why += (f"; without the run {', '.join(a['runs'])} it removes {100 * max(a['explained_share'], 0):.0f} % "
-                    f"and keeps {a['heldout_delta_nll_kept']:.1f} of {a['fitted_delta_nll_kept']:.1f}")
-        best["note"] = (f"significant, but closes {100 * max(best.get('closed_fraction', 0.0), 0):.0f} % of the "
-                        f"held-out gap above the noise and {why} (needs {100 * MIN_CLOSED:.0f} % of either, "
-                        f"the second with {100 * HELDOUT_SHARE:.0f} % of its gain held out, on all runs or all "
-                        f"but one); " + best["estimate_text"])
+        um = f"closes {100 * max(best.get('closed_fraction', 0.0), 0):.0f} % of the held-out gap above the noise"
+        if a:
+            um += f" ({100 * max(a['closed_fraction'], 0):.0f} % without the run {', '.join(a['runs'])})"
+        if not best.get("at_floor", False):
+            why = (f"the likelihood test does not apply: the held-out gap is {best['heldout_gap_ratio_before']:.2g}× "
+                   f"the noise, above the encoding's own floor (needs {100 * MIN_CLOSED:.0f} % of the gap)")
+        else:
+            why = (f"removes {100 * max(share, 0):.0f} % of the excess χ²" if share < MIN_CLOSED else
+                   f"keeps {ho:.1f} of its Δnll {best['delta_nll']:.1f} on held-out runs" if np.isfinite(ho) else
+                   "has no held-out Δnll")
+            if a and share >= MIN_CLOSED:
+                why += (f"; without the run {', '.join(a['runs'])} it removes "
+                        f"{100 * max(a['explained_share'], 0):.0f} % and keeps {a['heldout_delta_nll_kept']:.1f} of "
+                        f"{a['fitted_delta_nll_kept']:.1f}")
+            why += (f" (needs {100 * MIN_CLOSED:.0f} % of either, the second with {100 * HELDOUT_SHARE:.0f} % of its "
+                    "gain held out, on all runs or all but one)")
+        best["note"] = f"significant, but {um}; {why}; " + best["estimate_text"]
         return None, None
     best["note"] = "added; " + best["estimate_text"]
-    a = best.get("heldout_set_aside")
-    if (best.get("closed_fraction", 0.0) < MIN_CLOSED
-            and not _likelihood_closes(best.get("explained_share", 0.0), best.get("heldout_delta_nll", float("nan")),
-                                       best["delta_nll"])):
-        # named on all folds but one: say which, and what the held-out figures are without it
+    on_all = best.get("closed_fraction", 0.0) >= MIN_CLOSED or (best.get("at_floor", False) and _likelihood_closes(
+        best.get("explained_share", 0.0), best.get("heldout_delta_nll", float("nan")), best["delta_nll"]))
+    if not on_all and a:
+        # named on all runs but one: say which, and what the held-out figures are without it
         gaps = (f", held-out gap {a['heldout_gap_before_um'] * 1e3:.1f} -> {a['heldout_gap_after_um'] * 1e3:.1f} nm"
                 if np.isfinite(a["heldout_gap_before_um"]) and np.isfinite(a["heldout_gap_after_um"]) else "")
         best["note"] += (f" (held out on every run but {', '.join(a['runs'])}, which it fits better but cannot "

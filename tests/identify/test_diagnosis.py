@@ -389,6 +389,8 @@ def _cand(dnll, ho_dnll, ho_before=0.0205, ho_after=0.0212, noise=0.0150):
     c = dict(delta_nll=dnll, heldout_delta_nll=ho_dnll, gap=dict(noise_um=noise), heldout_gap_before_um=ho_before,
              heldout_gap_after_um=ho_after)
     c["closed_fraction"], c["explained_share"] = _closed_fraction(c), _explained_share(c, base)
+    c["heldout_gap_ratio_before"] = ho_before / noise
+    c["at_floor"] = c["heldout_gap_ratio_before"] <= 1.5  # DiagnosisOptions.gap_tolerance
     return c
 
 
@@ -453,7 +455,8 @@ def test_the_likelihood_test_is_wired_into_naming_and_says_what_failed():
             assert why in c["note"], c["note"]
 
 
-def _drift_folds(g, h, ho_total=None, names=None, without=0.3, base_chi2=424_000.0):
+def _drift_folds(g, h, ho_total=None, names=None, without=0.3, base_chi2=424_000.0, at_floor=False,
+                 without_after=0.05):
     """A candidate scored per fold as :func:`identify.diagnosis._score` does (base χ² per
     fold 2·gain, the candidate's 0)."""
     from identify.diagnosis import _closed_fraction, _explained_share, _heldout_by_fold
@@ -463,12 +466,14 @@ def _drift_folds(g, h, ho_total=None, names=None, without=0.3, base_chi2=424_000
     # measured base: drift data at scale 1, the baseline's χ² (7c7f030)
     base = dict(chi2=base_chi2, n_obs=600, n_eff=30,
                 heldout=dict(chi2_by_fold=list(2 * h), fitted_chi2_by_fold=list(2 * g), rows_by_fold=[50] * n,
-                             gap_um_without_fold=[without] * n))
+                             gap_um_without_fold=[without] * n, noise_um_without_fold=[0.02] * n))
     c = dict(delta_nll=float(g.sum()), heldout_delta_nll=float(h.sum()) if ho_total is None else ho_total,
              gap=dict(noise_um=0.02), heldout_gap_before_um=0.336, heldout_gap_after_um=0.321,
              heldout=dict(chi2_by_fold=[0.0] * n, fitted_chi2_by_fold=[0.0] * n, rows_by_fold=[50] * n,
-                          gap_um_without_fold=[0.05] * n))
+                          gap_um_without_fold=[without_after] * n, noise_um_without_fold=[0.02] * n))
     c["closed_fraction"], c["explained_share"] = _closed_fraction(c), _explained_share(c, base)
+    c["heldout_gap_ratio_before"] = c["heldout_gap_before_um"] / 0.02
+    c["at_floor"] = at_floor
     c["heldout_by_fold"], c["heldout_set_aside"] = _heldout_by_fold(
         base, c, names if names is not None else [[f"run{k}"] for k in range(n)])
     if c["heldout_set_aside"]:
@@ -498,15 +503,18 @@ def test_one_run_whose_prediction_fails_does_not_veto_an_effect_the_others_confi
 
 
 def test_a_gain_that_lies_in_the_one_run_set_aside_is_not_named():
-    """An overfitted run: the fitted gain lies in it and its prediction fails; setting it
-    aside leaves too little of the excess, and two failing runs are not one."""
+    """An overfitted run: the fitted gain lies in it and its prediction does not keep it;
+    setting it aside leaves too little of the excess and the other runs' gap unchanged,
+    and two failing runs are not one."""
     from identify.diagnosis import _closes, _try
 
-    overfit = _drift_folds([10, 10, 10, 200_000, 10, 10, 10, 10], [5, 5, 5, -50_000, 5, 5, 5, 5])
+    overfit = _drift_folds([10, 10, 10, 200_000, 10, 10, 10, 10], [5, 5, 5, 1000, 5, 5, 5, 5],
+                           at_floor=True, without_after=0.3)
     assert overfit["heldout_set_aside"]["runs"] == ["run3"] and not _closes(overfit)
     overfit.update(effect="topography", dr=np.ones(3), delta_aic=-4e5, status="Solve_Succeeded", estimate_text="a",
                    closes=False)
-    assert _try(overfit, [])[0] is None and "without the run run3 it removes 0 %" in overfit["note"]
+    assert _try(overfit, [])[0] is None
+    assert "(0 % without the run run3)" in overfit["note"] and "without the run run3 it removes 0 %" in overfit["note"]
     two = list(DRIFT_H)
     two[4] = -300_000  # a second run failing as badly
     assert not _closes(_drift_folds(DRIFT_G, two))
@@ -564,7 +572,7 @@ def test_score_sets_a_run_aside_from_the_workers_per_fold_chi2():
                     gap=dict(gap_um=0.2, noise_um=0.02, gap_sigma=10.0),
                     heldout=dict(gap_um=0.336, gap_sigma=15.0, chi2=sum(ho), n_rows=578, chi2_by_fold=ho,
                                  fitted_chi2_by_fold=fit, rows_by_fold=[71, 65, 33, 19, 13, 207, 109, 61],
-                                 gap_um_without_fold=[0.3] * 8))
+                                 gap_um_without_fold=[0.3] * 8, noise_um_without_fold=[0.02] * 8))
 
     base = res(None, base_fit, base_ho, 30)
     cand = res("drift", drift_fit, drift_ho, 31)
@@ -670,3 +678,18 @@ def test_a_sequence_that_cannot_be_decided_again_leaves_the_named_model(offset_b
     assert res.effects == ["load_offset"] and res.timing["refits"] == 2
     assert any("deciding the mode sequence again with load_offset failed: RuntimeError: no arcs" in n
                for n in res.notes)
+
+
+def test_away_from_the_encodings_floor_only_the_gap_in_um_names():
+    """Measured on the out-of-library set (d6efe11): a load offset with Δnll 5276 fitted and
+    8375 held out, while the held-out gap (4.8× the noise) went 92.2 -> 89.9 nm; it was
+    named. The likelihood test is for a gap at the encoding's floor."""
+    from identify.diagnosis import _closes, _try
+
+    off = _cand(5275.8, 8375.5, ho_before=0.0922, ho_after=0.0899, noise=0.0190)
+    assert not off["at_floor"] and off["explained_share"] > 0.3 and not _closes(off)
+    off.update(effect="load_offset", dr=np.ones(3), delta_aic=-10549.5, status="Solve_Succeeded",
+               estimate_text="load_offset = 7.2e-07", closes=False)
+    assert _try(off, [])[0] is None and "the likelihood test does not apply" in off["note"], off["note"]
+    # the same gains with the gap at the floor: named by the likelihood
+    assert _closes(_cand(5275.8, 8375.5, ho_before=0.0205, ho_after=0.0212, noise=0.0150))
