@@ -614,8 +614,8 @@ def test_a_named_effect_ends_the_diagnosis_without_measuring_it_twice(offset_bas
     """A load offset on four short runs, the only candidate: named in round 1; with nothing
     left to try, the final model is that refit (its held-out folds are not refitted again)."""
     said = []
-    res = diagnose(None, baseline=offset_baseline, options=DiagnosisOptions(effects=("load_offset",)),
-                   progress=said.append)
+    res = diagnose(None, baseline=offset_baseline,
+                   options=DiagnosisOptions(effects=("load_offset",), resequence=True), progress=said.append)
     assert res.effects == ["load_offset"], res.report()
     c = res.candidates[0]
     # the sequence was decided again with the offset, and stood (the baseline's was right)
@@ -658,7 +658,8 @@ def test_a_sequence_decided_again_is_measured_in_a_final_round(offset_baseline, 
         return dict(current), list(new_runs), True
 
     monkeypatch.setattr(dg, "_resequence", changed)
-    res = diagnose(None, baseline=offset_baseline, options=DiagnosisOptions(effects=("load_offset",)))
+    res = diagnose(None, baseline=offset_baseline,
+                   options=DiagnosisOptions(effects=("load_offset",), resequence=True))
     assert res.effects == ["load_offset"] and new_runs
     assert res.timing["refits"] == 3 and len(res.rounds) == 2
     final = res.rounds[-1][0]
@@ -674,7 +675,8 @@ def test_a_sequence_that_cannot_be_decided_again_leaves_the_named_model(offset_b
         raise RuntimeError("no arcs")
 
     monkeypatch.setattr(dg, "_resequence", broken)
-    res = diagnose(None, baseline=offset_baseline, options=DiagnosisOptions(effects=("load_offset",), folds=2))
+    opts = DiagnosisOptions(effects=("load_offset",), folds=2, resequence=True)
+    res = diagnose(None, baseline=offset_baseline, options=opts)
     assert res.effects == ["load_offset"] and res.timing["refits"] == 2
     assert any("deciding the mode sequence again with load_offset failed: RuntimeError: no arcs" in n
                for n in res.notes)
