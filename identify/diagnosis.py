@@ -13,9 +13,9 @@ it shrinks once that effect is added — on runs the fit did not see (DESIGN.md 
    (R² < 0.99 in the information metric, else ``confounded_with`` names them), no other
    candidate explains the same residuals as well (nearly parallel residual change and
    |ΔΔAIC| < 10: both are reported as confounded and neither is named), and it closes a
-   real part of the gap on held-out runs (:func:`_closes`: of the µm gap, or of the
-   excess χ² with the likelihood gain kept held out, on all runs or on all but the one
-   that argues most against it). Forward selection adds it and tries the rest again.
+   real part of the gap on held-out runs (:func:`_closes`: of the µm gap, or — where
+   that gap sits at the encoding's own floor — of the excess χ² with the likelihood gain
+   kept held out; on all runs or on all but the one that argues most against it). Forward selection adds it and tries the rest again.
 4. Verdict: ``adequate`` when the final model's held-out gap is within ``gap_tolerance``
    (1.5×) of the noise floor, or when no feature is significant (Bonferroni over the
    features) and no nameable candidate is left significant; else ``unexplained`` (a gap
