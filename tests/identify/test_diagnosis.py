@@ -695,3 +695,31 @@ def test_away_from_the_encodings_floor_only_the_gap_in_um_names():
     assert _try(off, [])[0] is None and "the likelihood test does not apply" in off["note"], off["note"]
     # the same gains with the gap at the floor: named by the likelihood
     assert _closes(_cand(5275.8, 8375.5, ho_before=0.0205, ho_after=0.0212, noise=0.0150))
+
+
+def test_a_weaker_candidate_is_not_named_while_a_better_one_could_not_be_judged():
+    """Measured (β = 3e8 withheld, 3a37f1b): the spring nonlinearity's refit closed 93 % of
+    the held-out gap but ended Line_Search_Failed, and a load offset closing 38 % was named
+    in its place. A converged better candidate that does not close still lets the next
+    one be tried."""
+    from identify.diagnosis import _select
+
+    def cand(effect, daic, status, closes):
+        return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic, status=status,
+                    closes=closes, closed_fraction=0.93 if closes else 0.0, explained_share=1.0,
+                    heldout_delta_nll=100.0, delta_nll=50.0, estimate_text=effect, dr=np.eye(2)[len(effect) % 2],
+                    at_floor=False, heldout_gap_ratio_before=2.0)
+
+    beta = cand("spring_nonlinearity", -1700.6, "Line_Search_Failed", True)
+    off = cand("load_offset", -500.0, "Solve_Succeeded", True)
+    assert _select([beta, off], {}) == (None, None)
+    assert "did not converge" in beta["note"] and "not tried for a name: spring_nonlinearity" in off["note"]
+    # the better one converged but closes nothing: the next is named
+    beta = cand("spring_nonlinearity", -1700.6, "Solve_Succeeded", False)
+    beta["heldout_gap_ratio_before"] = 2.0
+    off = cand("load_offset", -500.0, "Solve_Succeeded", True)
+    assert _select([beta, off], {})[0] is off
+    # the better one did not converge and closes nothing: the next is named too
+    beta = cand("spring_nonlinearity", -1700.6, "Maximum_Iterations_Exceeded", False)
+    off = cand("load_offset", -500.0, "Solve_Succeeded", True)
+    assert _select([beta, off], {})[0] is off
