@@ -15,7 +15,8 @@ it shrinks once that effect is added — on runs the fit did not see (DESIGN.md 
    |ΔΔAIC| < 10: both are reported as confounded and neither is named), and it closes a
    real part of the gap on held-out runs (:func:`_closes`: of the µm gap, or — where
    that gap sits at the encoding's own floor — of the excess χ² with the likelihood gain
-   kept held out; on all runs or on all but the one that argues most against it). Forward selection adds it and tries the rest again.
+   kept held out; on all runs or on all but the one that argues most against it).
+   Forward selection adds it and tries the rest again.
 4. Verdict: ``adequate`` when the final model's held-out gap is within ``gap_tolerance``
    (1.5×) of the noise floor, or when no feature is significant (Bonferroni over the
    features) and no nameable candidate is left significant; else ``unexplained`` (a gap
@@ -607,9 +608,6 @@ def _score(results, base, opts, n_cand, fold_names=None) -> list:
         c["heldout_gap_ratio_before"] = float(c["heldout_gap_before_um"] / noise) if noise > 0 else float("nan")
         c["at_floor"] = bool(c["heldout_gap_ratio_before"] <= opts.gap_tolerance)
         c["explained_share"] = _explained_share(c, base)
-        if c["heldout_set_aside"]:
-            c["heldout_set_aside"]["explained_share"] = _explained_share(
-                dict(delta_nll=c["heldout_set_aside"]["fitted_delta_nll_kept"]), base)
         c["closes"] = _closes(c)
         c["note"] = c["estimate_text"]
         stopped = (f"refit stopped after {c.get('iterations')} iterations in all: even {GIVE_UP_MARGIN:g}× the "
@@ -681,6 +679,7 @@ def _heldout_by_fold(base: dict, c: dict, fold_names=None):
              heldout_gap_after_um=float(without(ho_c, "gap_um_without_fold")),
              noise_um=float(without(ho_b, "noise_um_without_fold")))
     a["closed_fraction"] = _closed_share(a["heldout_gap_before_um"], a["heldout_gap_after_um"], a["noise_um"])
+    a["explained_share"] = _explained_share(dict(delta_nll=a["fitted_delta_nll_kept"]), base)
     return by_fold, a
 
 
@@ -747,17 +746,25 @@ def _closes(c) -> bool:
     out-of-library set (each run's load ±15 % off, at d6efe11) a load offset removed 37 %
     of the excess χ² and kept all of it held out, and was named, while the held-out gap
     (4.8× the noise) went 92.2 → 89.9 nm."""
+    return _route(c) is not None
+
+
+def _route(c):
+    """How the candidate closes the gap (:func:`_closes`): "gap", "likelihood", "gap
+    without one run", "likelihood without one run", or None."""
     if c.get("closed_fraction", 0.0) >= MIN_CLOSED:
-        return True
+        return "gap"
+    at_floor = c.get("at_floor", False)
+    if at_floor and _likelihood_closes(c.get("explained_share", 0.0), c.get("heldout_delta_nll", float("nan")),
+                                       c["delta_nll"]):
+        return "likelihood"
     a = _set_aside_usable(c)
     if a and a.get("closed_fraction", 0.0) >= MIN_CLOSED:
-        return True
-    if not c.get("at_floor", False):
-        return False
-    return _likelihood_closes(c.get("explained_share", 0.0), c.get("heldout_delta_nll", float("nan")),
-                              c["delta_nll"]) or bool(a and _likelihood_closes(
-                                  a.get("explained_share", 0.0), a["heldout_delta_nll_kept"],
-                                  a["fitted_delta_nll_kept"]))
+        return "gap without one run"
+    if a and at_floor and _likelihood_closes(a.get("explained_share", 0.0), a["heldout_delta_nll_kept"],
+                                             a["fitted_delta_nll_kept"]):
+        return "likelihood without one run"
+    return None
 
 
 def _likelihood_closes(share: float, heldout_dnll: float, fitted_dnll: float) -> bool:
@@ -851,9 +858,7 @@ def _try(best, others):
         best["note"] = f"significant, but {um}; {why}; " + best["estimate_text"]
         return None, None
     best["note"] = "added; " + best["estimate_text"]
-    on_all = best.get("closed_fraction", 0.0) >= MIN_CLOSED or (best.get("at_floor", False) and _likelihood_closes(
-        best.get("explained_share", 0.0), best.get("heldout_delta_nll", float("nan")), best["delta_nll"]))
-    if not on_all and a:
+    if _route(best) in ("gap without one run", "likelihood without one run"):
         # named on all runs but one: say which, and what the held-out figures are without it
         gaps = (f", held-out gap {a['heldout_gap_before_um'] * 1e3:.1f} -> {a['heldout_gap_after_um'] * 1e3:.1f} nm"
                 if np.isfinite(a["heldout_gap_before_um"]) and np.isfinite(a["heldout_gap_after_um"]) else "")
@@ -871,12 +876,11 @@ def _resequence(current, runs, fopts, prob0, say):
     with them (the named candidate's scores stand: they were its evidence against the
     model without it, on the same sequence)."""
     from .fit import decide_sequence
+    from .sequence import _excess  # χ² above its expectation: comparable across sequences
 
     p, w = _rebuild(current, runs, fopts, prob0)
     r0 = p.residuals(w)
     f0 = 0.5 * float(r0 @ r0)
-    # χ² above its expectation: comparable across sequences, which leave frames in or out
-    excess = lambda q, r: float(r @ r) + q.chi2_constant() - q.n_observations()  # noqa: E731
     say(f"deciding the mode sequence again with {', '.join(p.theta.names)} free")
     p.progress = say
     best = dict(w=np.asarray(w, float), f=f0, iterations=0, wall_s=0.0, success=True, status="named")
@@ -889,7 +893,7 @@ def _resequence(current, runs, fopts, prob0, say):
     r = p2.residuals(sol["w"])
     differs = len(p2.runs) != len(runs) or any(
         not np.array_equal(a.trigger_steps, b.trigger_steps) for a, b in zip(p2.runs, runs))
-    if not differs or not (np.all(np.isfinite(r)) and excess(p2, r) < excess(p, r0)):
+    if not differs or not (np.all(np.isfinite(r)) and _excess(p2, r) < _excess(p, r0)):
         say("  the mode sequence stands")
         return current, runs, False
     values.update(zip(p2.theta.names, (float(v) for v in p2.theta.from_scaled(sol["w"][: p2.n_theta]))))
