@@ -39,12 +39,23 @@ __all__ = ["ArcFunctions", "arc_functions", "ARC_OUTPUTS", "N_ARC_JAC_OUTPUTS"]
 ARC_OUTPUTS = ("slip_um", "state_end", "stop_ms", "peak_speed_m_per_s", "moving_at_end")
 N_ARC_JAC_OUTPUTS = 2  # slip length and state at the horizon enter the NLP
 _TAPE_STEPS = 20_000  # bound of the adjoint tape (steps per arc); a slip takes a few hundred
+# Tolerances of the arcs (scaled states). At reltol 1e-6 the position at a fast slip's
+# stop event is interpolated inside one long adaptive step, and which step holds the
+# stop depends on the inputs: measured on the 2-run speed benchmark at its stalled
+# point, one arc's slip length jumped by 0.14 nm between inputs 4e-5 apart (14 of 274
+# arcs jumped by > 0.1 pm along e0). A jump of J over a difference step h puts J/h in
+# the Jacobian: the Gauss-Newton step then promised a χ² decrease that no step along it
+# gave, and the solve spent 60 iterations and 104 s "Stalled" at the optimum. At 1e-7
+# no arc jumps by more than 0.013 pm, each arc costs 1.5x, and that fit converges in
+# 9 iterations and 22 s to the same estimates (1e-8: 2.3x per arc, no further gain).
+ARC_RELTOL = 1e-7
+ARC_ABSTOL = 1e-9
 
 
 class ArcFunctions:
     """The compiled arc and arc-Jacobian Functions of one model (see module docstring)."""
 
-    def __init__(self, model: Model, reltol: float = 1e-6, abstol: float = 1e-8):
+    def __init__(self, model: Model, reltol: float = ARC_RELTOL, abstol: float = ARC_ABSTOL):
         self.model = model
         self.reltol, self.abstol = reltol, abstol
         d = arc_dae(model)
@@ -169,6 +180,6 @@ def _mapped(f: ca.Function, n: int, threads: int) -> ca.Function:
 
 
 @functools.lru_cache(maxsize=None)
-def arc_functions(model: Model, reltol: float = 1e-6, abstol: float = 1e-8) -> ArcFunctions:
+def arc_functions(model: Model, reltol: float = ARC_RELTOL, abstol: float = ARC_ABSTOL) -> ArcFunctions:
     """Cached :class:`ArcFunctions` for ``model``."""
     return ArcFunctions(model, reltol, abstol)

@@ -18,6 +18,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from .arcs import ARC_ABSTOL, ARC_RELTOL
 from .laws import get_law
 from .model import Model
 from .missed import missed_slips
@@ -67,7 +68,7 @@ class FitOptions:
     max_arc_steps : int
         Largest number of puller steps one slip arc may span.
     arc_reltol, arc_abstol : float
-        Tolerances of the arcs (scaled units).
+        Tolerances of the arcs (scaled states); why the defaults: ``identify.arcs.ARC_RELTOL``.
     arc_jacobian : {"forward", "central"}
         Finite differences of the arcs while the solver iterates (``forward``, default:
         one integration per input instead of two); the covariance always uses central
@@ -126,8 +127,8 @@ class FitOptions:
     free_offset: bool = False
     use_creep_runs: bool = True
     max_arc_steps: int = 64
-    arc_reltol: float = 1e-6
-    arc_abstol: float = 1e-8
+    arc_reltol: float = ARC_RELTOL
+    arc_abstol: float = ARC_ABSTOL
     arc_jacobian: str = "forward"
     solver: str = "gauss-newton"
     staged_start: bool = True
