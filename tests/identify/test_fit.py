@@ -603,6 +603,11 @@ def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, mon
 
     prob, w = small_fit.problem, small_fit.w.copy()
     prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP)
+    # μmax a little off, the slip lengths' violation tolerated: the undamped step promises
+    # more than stat_tol (at the solution itself it promises less, and the solve would
+    # end "Solve_Succeeded" at once), and damping shrinks the promise
+    w[0] += 1e-3
+    monkeypatch.setattr(prob, "feas_tol", 1.0)
     _worse_away_from(w, prob, monkeypatch)
     said = []
     monkeypatch.setattr(prob, "_stalled", lambda *a, **kw: said.append(kw) or (nlp.STALLED, True))
@@ -610,7 +615,25 @@ def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, mon
     # (no step is accepted, so the only call is the damped-convergence one; before,
     # this ended "Solve_Succeeded")
     assert res["status"] == nlp.STALLED and said == [dict(damped=False)]
-    assert np.array_equal(res["w"], w)
+    assert res["iterations"] > 1 and np.array_equal(res["w"], w)
+
+
+def test_a_line_search_that_fails_at_every_damping_is_judged_as_a_stall(small_fit, monkeypatch):
+    """A plateau level off: the damping (on the parameters) cannot shrink what the step
+    promises, every line search fails up to the largest damping; the undamped step decides
+    by the stall rule (measured: a diagnosis refit whose estimate and held-out gap were
+    right ended "Line_Search_Failed" and was not named)."""
+    import identify.nlp as nlp
+
+    prob, w, _ = _off_solution(small_fit)
+    monkeypatch.setattr(prob, "feas_tol", 1.0)  # (the 1 nm violation alone would not stop it)
+    _worse_away_from(w, prob, monkeypatch)
+    for verdict, status in (((nlp.STALLED, True), nlp.STALLED), (("Stalled", False), "Line_Search_Failed")):
+        said = []
+        monkeypatch.setattr(prob, "_stalled", lambda *a, _v=verdict, **kw: said.append(kw) or _v)
+        res = prob.solve_gn(w)
+        assert res["status"] == status and res["success"] == verdict[1] and said == [dict(damped=False)]
+        assert np.array_equal(res["w"], w)
 
 
 def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, monkeypatch):
