@@ -42,8 +42,8 @@ _TAPE_STEPS = 20_000  # bound of the adjoint tape (steps per arc); a slip takes 
 # Tolerances of the arcs (scaled states). At reltol 1e-6 the position at a fast slip's
 # stop event is interpolated inside one long adaptive step, and which step holds the
 # stop depends on the inputs: measured on the 2-run speed benchmark at its stalled
-# point, one arc's slip length jumped by 0.14 nm between inputs 4e-5 apart (14 of 274
-# arcs jumped by > 0.1 pm along e0). A jump of J over a difference step h puts J/h in
+# point, one arc's slip length jumped by 0.14 nm between inputs 4e-5 apart (97 of 274
+# arcs jumped by > 0.1 pm along e0 there, 14 at the true parameters). A jump of J over a difference step h puts J/h in
 # the Jacobian: the Gauss-Newton step then promised a χ² decrease that no step along it
 # gave, and the solve spent 60 iterations and 104 s "Stalled" at the optimum. At 1e-7
 # no arc jumps by more than 0.014 pm, each arc costs 1.6x, and that fit converges in
