@@ -618,6 +618,7 @@ class Problem:
             # them (a Jacobian row wrong to first order: measured, the step's actual
             # slip-length change missed the predicted one by 6.5e-6 µm at α = 0.01 and
             # 7e-4 at α = 1 on a creeping arc), gets one more solve on the accurate Jacobian
+            # (in the one line-search failure measured, that solve ended there too)
             self.jacobian_scheme("central", SOLVE_REL_STEP)
             try:
                 more = self.solve_gn(res["w"], fixed)

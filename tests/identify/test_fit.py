@@ -636,7 +636,8 @@ def test_a_line_search_that_fails_at_every_damping_is_judged_as_a_stall(small_fi
         assert np.array_equal(res["w"], w)
 
 
-def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, monkeypatch):
+@pytest.mark.parametrize("status", ["Stalled", "Line_Search_Failed"])
+def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, monkeypatch, status):
     import identify.nlp as nlp
 
     prob, w = small_fit.problem, small_fit.w
@@ -646,7 +647,7 @@ def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, mon
         cb = prob._cb_jac
         schemes.append((cb.scheme, cb.rel_step))
         if len(schemes) == 1:
-            return dict(w=w0, f=2.0, status="Stalled", success=False, iterations=7, wall_s=1.0)
+            return dict(w=w0, f=2.0, status=status, success=False, iterations=7, wall_s=1.0)
         return dict(w=w0, f=1.0, status="Solve_Succeeded", success=True, iterations=3, wall_s=0.5)
 
     monkeypatch.setattr(prob, "solve_gn", fake_gn)
