@@ -636,6 +636,87 @@ def test_a_line_search_that_fails_at_every_damping_is_judged_as_a_stall(small_fi
         assert np.array_equal(res["w"], w)
 
 
+def test_a_stall_reached_under_damping_is_judged_on_the_undamped_step(small_fit, monkeypatch):
+    """Five failed line searches raise the damping to 10; then four accepted steps gain
+    1e-5 of ½χ² each (< stat_tol), while the damping decays (1, 0.1, 0.01, 1e-3). That
+    stall is judged on the undamped step, as a damped convergence and a failed line search
+    are (measured: a load-offset refit whose Δnll was known to 0.6 was called "Stalled"
+    on its damped step's short promise and not named)."""
+    import identify.nlp as nlp
+
+    prob, w = small_fit.problem, small_fit.w.copy()
+    prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP)
+    w[0] += 1e-3
+    monkeypatch.setattr(prob, "feas_tol", 1.0)
+    true_evaluate = prob.evaluate
+    seen = dict(jac=0)
+
+    def scripted(x, jac=False):
+        if jac:
+            seen["jac"] += 1
+            seen["at"] = true_evaluate(x, True)
+            return seen["at"]
+        if seen["jac"] <= 5:  # every trial point worse
+            r, g = true_evaluate(x)
+            return r + 10.0, g
+        r, g = seen["at"][:2]  # 1e-5 better than the point the step started from
+        return r * np.sqrt(1.0 - 2e-5 / float(r @ r)), g
+
+    monkeypatch.setattr(prob, "evaluate", scripted)
+    said = []
+    monkeypatch.setattr(prob, "_stalled", lambda *a, **kw: said.append(("stalled", kw)) or ("Stalled", False))
+    monkeypatch.setattr(prob, "_stalled_undamped",
+                        lambda *a: said.append(("undamped", a[-1])) or (nlp.STALLED, True))
+    res = prob.solve_gn(w)
+    assert said == [("undamped", "Stalled")], said
+    assert res["status"] == nlp.STALLED and res["success"] and res["iterations"] == 5 + nlp.STALL_ITERS
+
+
+def test_a_second_order_correction_lands_a_full_step_on_curved_constraints():
+    """The Maratos effect on min ½(x − 1)² s.t. y = x² from (0, 0): the Gauss–Newton step
+    (1, 0) reaches the optimal x, but violates the constraint by dx² = 1 and the ℓ1 merit
+    (ν = 1) rejects it (1 > ½). The correction re-solves the KKT system with the
+    constraint's residual at the trial point and lands on (1, 1), feasible, merit 0 (the
+    diagnosis's load-offset refit, whose χ² fell as predicted while |g| rose 1e-6 -> 1e-2,
+    crawled at α ≈ 0.004 without it)."""
+    from types import SimpleNamespace
+
+    import scipy.sparse as sp
+
+    from identify.nlp import Problem, _kkt_solve
+
+    def evaluate(w, jac=False):
+        return np.array([w[0] - 1.0]), np.array([w[1] - w[0] ** 2])
+
+    w = np.zeros(2)
+    r, g = evaluate(w)
+    Jr = sp.csc_matrix(np.array([[1.0, 0.0]]))
+    Jg = sp.csc_matrix(np.array([[-2.0 * w[0], 1.0]]))
+    H, grad, free, nu = (Jr.T @ Jr).tocsc(), Jr.T @ r, np.arange(2), 1.0
+    d = _kkt_solve(H, Jg, grad, g, free)[:2]
+    np.testing.assert_allclose(d, [1.0, 0.0], atol=1e-12)
+    phi0 = 0.5 * r @ r + nu * np.abs(g).sum()
+    dphi = grad @ d - nu * np.abs(g).sum()
+    r1, g1 = evaluate(w + d)
+    assert 0.5 * r1 @ r1 + nu * np.abs(g1).sum() > phi0 + 1e-4 * dphi  # the full step is rejected
+    fake = SimpleNamespace(n_w=2, evaluate=evaluate)
+    unbounded = np.full(2, np.inf)
+    q, (_, g2, phi2) = Problem._second_order_correction(fake, w, d, g1, H, Jg, grad, free, -unbounded,
+                                                          unbounded, nu, phi0 + 1e-4 * dphi)
+    np.testing.assert_allclose(w + q, [1.0, 1.0], atol=1e-12)
+    assert abs(g2[0]) < 1e-12 and phi2 < 1e-20
+    # a bound the correction would cross cuts it back: y ≤ 0.9 gives (1, 0.9), merit 0.1
+    q, (_, g3, phi3) = Problem._second_order_correction(fake, w, d, g1, H, Jg, grad, free, -unbounded,
+                                                        np.array([np.inf, 0.9]), nu, phi0 + 1e-4 * dphi)
+    np.testing.assert_allclose(w + q, [1.0, 0.9], atol=1e-12)
+    assert g3[0] == pytest.approx(-0.1)
+    assert phi3 == pytest.approx(0.1)
+    # a correction that leaves the constraints further off is not taken
+    worse = SimpleNamespace(n_w=2, evaluate=lambda x, jac=False: (evaluate(x)[0], 10 * np.abs(evaluate(x)[1]) + 5))
+    assert Problem._second_order_correction(worse, w, d, g1, H, Jg, grad, free, -unbounded, unbounded, nu,
+                                            phi0 + 1e-4 * dphi) is None
+
+
 @pytest.mark.parametrize("status", ["Stalled", "Line_Search_Failed"])
 def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, monkeypatch, status):
     import identify.nlp as nlp
