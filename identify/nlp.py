@@ -732,7 +732,7 @@ class Problem:
             nu = max(nu, 1.1 * float(np.max(np.abs(lam)))) if lam.size else nu
             phi0 = 0.5 * r @ r + nu * np.abs(g).sum()
             dphi = grad @ d - nu * np.abs(g).sum()
-            a, accepted = a_max, False
+            a, accepted, d_gn = a_max, False, d  # (d_gn: the step before any correction)
             # backtracking stops where the step could gain less than stat_tol: steps that
             # short are the arcs' integration noise, not progress (measured on a stalled
             # 2-run fit: 21 of 38 accepted steps had α < 1e-6, dθ ~1e-9, and with the
@@ -763,7 +763,7 @@ class Problem:
                 continue
             step_th = float(np.max(np.abs(a * d[:n_th]))) if n_th else 0.0
             w, r, g = w + a * d, r1, g1
-            lm = lm / 10 if lm > 1e-3 else 0.0
+            lm_step, lm = lm, (lm / 10 if lm > 1e-3 else 0.0)
             feas = float(np.abs(g).max()) if g.size else 0.0
             log.debug("GN it %d: f %.8g |g| %.2e dθ %.2e α %.2g lm %.1e", it, 0.5 * r @ r, feas, step_th, a, lm)
             if self.progress is not None and time.perf_counter() - said >= PROGRESS_EVERY_S:
@@ -775,10 +775,10 @@ class Problem:
                 break
             stalled = stalled + 1 if phi0 - phi1 < stat_tol else 0
             if stalled >= STALL_ITERS:
-                if lm > 0:  # judged on the undamped step, as a damped convergence is
+                if lm_step > 0:  # judged on the undamped step, as a damped convergence is
                     status, success = self._stalled_undamped(it, r0, Jr, Jg, grad, g0, free, "Stalled")
                 else:
-                    status, success = self._stalled(it, r0, Jr, d, g, damped=False)
+                    status, success = self._stalled(it, r0, Jr, d_gn, g, damped=False)
                 break
         return dict(w=w, f=0.5 * float(r @ r), status=status, success=success, iterations=it,
                     wall_s=time.perf_counter() - t0)

@@ -637,11 +637,11 @@ def test_a_line_search_that_fails_at_every_damping_is_judged_as_a_stall(small_fi
 
 
 def test_a_stall_reached_under_damping_is_judged_on_the_undamped_step(small_fit, monkeypatch):
-    """Five failed line searches raise the damping to 10; then four accepted steps gain
-    1e-5 of ½χ² each (< stat_tol), while the damping decays (1, 0.1, 0.01, 1e-3). That
-    stall is judged on the undamped step, as a damped convergence and a failed line search
-    are (measured: a load-offset refit whose Δnll was known to 0.6 was called "Stalled"
-    on its damped step's short promise and not named)."""
+    """Four failed line searches raise the damping to 1; then four accepted steps, taken
+    at damping 1, 0.1, 0.01 and 1e-3 (after which it is 0), gain 1e-5 of ½χ² each
+    (< stat_tol). That stall is judged on the undamped step at the last step's start, as
+    a damped convergence and a failed line search are (measured: a load-offset refit whose
+    Δnll was known to 0.6 was called "Stalled" on its damped step's short promise)."""
     import identify.nlp as nlp
 
     prob, w = small_fit.problem, small_fit.w.copy()
@@ -656,7 +656,7 @@ def test_a_stall_reached_under_damping_is_judged_on_the_undamped_step(small_fit,
             seen["jac"] += 1
             seen["at"] = true_evaluate(x, True)
             return seen["at"]
-        if seen["jac"] <= 5:  # every trial point worse
+        if seen["jac"] <= 4:  # every trial point worse
             r, g = true_evaluate(x)
             return r + 10.0, g
         r, g = seen["at"][:2]  # 1e-5 better than the point the step started from
@@ -665,20 +665,27 @@ def test_a_stall_reached_under_damping_is_judged_on_the_undamped_step(small_fit,
     monkeypatch.setattr(prob, "evaluate", scripted)
     said = []
     monkeypatch.setattr(prob, "_stalled", lambda *a, **kw: said.append(("stalled", kw)) or ("Stalled", False))
-    monkeypatch.setattr(prob, "_stalled_undamped",
-                        lambda *a: said.append(("undamped", a[-1])) or (nlp.STALLED, True))
+    def undamped(it, r, Jr, Jg, grad, g, free, failed):
+        # (the point the last step started from: its residuals, constraints and Jacobian)
+        at = seen["at"]
+        same = all(np.array_equal(x, y) for x, y in ((r, at[0]), (g, at[1]))) and Jr is at[2]
+        said.append(("undamped", failed, same))
+        return nlp.STALLED, True
+
+    monkeypatch.setattr(prob, "_stalled_undamped", undamped)
     res = prob.solve_gn(w)
-    assert said == [("undamped", "Stalled")], said
-    assert res["status"] == nlp.STALLED and res["success"] and res["iterations"] == 5 + nlp.STALL_ITERS
+    assert said == [("undamped", "Stalled", True)], said
+    assert res["status"] == nlp.STALLED and res["success"] and res["iterations"] == 4 + nlp.STALL_ITERS
 
 
 def test_a_second_order_correction_lands_a_full_step_on_curved_constraints():
-    """The Maratos effect on min ½(x − 1)² s.t. y = x² from (0, 0): the Gauss–Newton step
-    (1, 0) reaches the optimal x, but violates the constraint by dx² = 1 and the ℓ1 merit
-    (ν = 1) rejects it (1 > ½). The correction re-solves the KKT system with the
-    constraint's residual at the trial point and lands on (1, 1), feasible, merit 0 (the
-    diagnosis's load-offset refit, whose χ² fell as predicted while |g| rose 1e-6 -> 1e-2,
-    crawled at α ≈ 0.004 without it)."""
+    """The Maratos effect on min ½(x − 1)² s.t. y = 2x², from (0.5, 0.75), 0.25 off the
+    constraint: the Gauss–Newton step to (1, 1.5) reaches the optimal x but leaves the
+    constraint 0.5 off, and the ℓ1 merit (ν = 1) rejects it (0.5 > 0.375). The
+    correction re-solves the KKT system with c(w + d) − J_g·d and lands on (1, 2),
+    feasible, merit 0 (with c(w + d) alone it would land on (1, 2.25)). Measured on the
+    diagnosis's load-offset refit: χ² fell as predicted while |g| rose 1e-6 -> 1e-2 µm,
+    and without the correction it crawled at α ≈ 0.004."""
     from types import SimpleNamespace
 
     import scipy.sparse as sp
@@ -686,35 +693,34 @@ def test_a_second_order_correction_lands_a_full_step_on_curved_constraints():
     from identify.nlp import Problem, _kkt_solve
 
     def evaluate(w, jac=False):
-        return np.array([w[0] - 1.0]), np.array([w[1] - w[0] ** 2])
+        return np.array([w[0] - 1.0]), np.array([w[1] - 2.0 * w[0] ** 2])
 
-    w = np.zeros(2)
+    w = np.array([0.5, 0.75])
     r, g = evaluate(w)
     Jr = sp.csc_matrix(np.array([[1.0, 0.0]]))
-    Jg = sp.csc_matrix(np.array([[-2.0 * w[0], 1.0]]))
+    Jg = sp.csc_matrix(np.array([[-4.0 * w[0], 1.0]]))
     H, grad, free, nu = (Jr.T @ Jr).tocsc(), Jr.T @ r, np.arange(2), 1.0
     d = _kkt_solve(H, Jg, grad, g, free)[:2]
-    np.testing.assert_allclose(d, [1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(w + d, [1.0, 1.5], atol=1e-12)
     phi0 = 0.5 * r @ r + nu * np.abs(g).sum()
-    dphi = grad @ d - nu * np.abs(g).sum()
+    target = phi0 + 1e-4 * (grad @ d - nu * np.abs(g).sum())
     r1, g1 = evaluate(w + d)
-    assert 0.5 * r1 @ r1 + nu * np.abs(g1).sum() > phi0 + 1e-4 * dphi  # the full step is rejected
+    assert 0.5 * r1 @ r1 + nu * np.abs(g1).sum() > target  # the full step is rejected
     fake = SimpleNamespace(n_w=2, evaluate=evaluate)
-    unbounded = np.full(2, np.inf)
-    q, (_, g2, phi2) = Problem._second_order_correction(fake, w, d, g1, H, Jg, grad, free, -unbounded,
-                                                          unbounded, nu, phi0 + 1e-4 * dphi)
-    np.testing.assert_allclose(w + q, [1.0, 1.0], atol=1e-12)
+    free_box = np.full(2, np.inf)
+    q, (_, g2, phi2) = Problem._second_order_correction(fake, w, d, g1, H, Jg, grad, free, -free_box,
+                                                          free_box, nu, target)
+    np.testing.assert_allclose(w + q, [1.0, 2.0], atol=1e-12)
     assert abs(g2[0]) < 1e-12 and phi2 < 1e-20
-    # a bound the correction would cross cuts it back: y ≤ 0.9 gives (1, 0.9), merit 0.1
-    q, (_, g3, phi3) = Problem._second_order_correction(fake, w, d, g1, H, Jg, grad, free, -unbounded,
-                                                        np.array([np.inf, 0.9]), nu, phi0 + 1e-4 * dphi)
-    np.testing.assert_allclose(w + q, [1.0, 0.9], atol=1e-12)
-    assert g3[0] == pytest.approx(-0.1)
-    assert phi3 == pytest.approx(0.1)
+    # a bound the correction would cross cuts it back: y ≤ 1.9 gives (1, 1.9), merit 0.1
+    q, (_, g3, phi3) = Problem._second_order_correction(fake, w, d, g1, H, Jg, grad, free, -free_box,
+                                                        np.array([np.inf, 1.9]), nu, target)
+    np.testing.assert_allclose(w + q, [1.0, 1.9], atol=1e-12)
+    assert g3[0] == pytest.approx(-0.1) and phi3 == pytest.approx(0.1)
     # a correction that leaves the constraints further off is not taken
     worse = SimpleNamespace(n_w=2, evaluate=lambda x, jac=False: (evaluate(x)[0], 10 * np.abs(evaluate(x)[1]) + 5))
-    assert Problem._second_order_correction(worse, w, d, g1, H, Jg, grad, free, -unbounded, unbounded, nu,
-                                            phi0 + 1e-4 * dphi) is None
+    assert Problem._second_order_correction(worse, w, d, g1, H, Jg, grad, free, -free_box, free_box, nu,
+                                            target) is None
 
 
 @pytest.mark.parametrize("status", ["Stalled", "Line_Search_Failed"])
