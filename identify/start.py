@@ -33,7 +33,6 @@ __all__ = ["staged_start", "start_merit"]
 
 log = logging.getLogger(__name__)
 _PRIOR_WEIGHT = 0.1  # residual per scaled unit away from the start
-_SLIP_LEVEL = ("mu_min",)
 
 
 def _trigger_table(prob):
@@ -94,30 +93,6 @@ def _solve(fun, tm, idx, th0, th_start):
     return out, sol
 
 
-def _scan(fun, tm, idx, i, th) -> float:
-    """The best of a coarse scan of scaled parameter ``i`` (from ¼ to 4× its value,
-    quarter octaves), the others of ``idx`` held: slip lengths are not convex in the
-    velocity strengthening. Measured on the 5-run speed benchmark with the aging stage's
-    μmin 0.545 (truth 0.484): the slip-length misfit has a narrow valley near A 0.01
-    and falls again towards large A; from the start's 0.018 the local solve went to A
-    0.070, a start whose χ² (9e6) was worse than the one it came from (3.9e6)."""
-    if tm.log[i]:
-        grid = th[i] + np.log(2) * np.arange(-8, 9) / 4
-    else:
-        grid = th[i] * 2.0 ** (np.arange(-8, 9) / 4) if th[i] > 0 else th[i] + np.linspace(0, 1, 9)
-    grid = grid[(grid >= tm.lo[i]) & (grid <= tm.hi[i])]
-    pos = list(idx).index(i)
-    best, best_cost = th[i], np.inf
-    for x in grid:
-        v = th[idx].copy()
-        v[pos] = x
-        r = fun(v)
-        cost = float(r @ r) if np.all(np.isfinite(r)) else np.inf
-        if cost < best_cost:
-            best, best_cost = x, cost
-    return best
-
-
 def staged_start(prob, start_values: dict, max_slips: int = 80, seed: int = 0) -> tuple[dict, dict]:
     """Improved start values for ``prob``'s free parameters (and a log of the stages)."""
     tm = prob.theta
@@ -135,23 +110,17 @@ def staged_start(prob, start_values: dict, max_slips: int = 80, seed: int = 0) -
     # --- stage a: aging from the triggers
     aging = [i for i, n in enumerate(tm.names) if n in prob.law.parameters and n not in ("dc", "vc")]
     tab = _trigger_table(prob)
-    use_triggers = bool(aging) and len(tab["ev"]) >= len(aging) + 1
-
-    def aging_fun(idx):
+    if aging and len(tab["ev"]) >= len(aging) + 1:
         def fa(v):
             t = th.copy()
-            t[idx] = v
+            t[aging] = v
             return _aging_residuals(prob, tm.names, values_of(t), tab)
-        return fa
 
-    if use_triggers:
-        th, sol = _solve(aging_fun(aging), tm, np.array(aging), th, th_start)
+        th, sol = _solve(fa, tm, np.array(aging), th, th_start)
         info["aging"] = dict(cost=float(sol.cost), nfev=int(sol.nfev), n=len(tab["ev"]),
                              values={tm.names[i]: float(tm.from_scaled(th)[i]) for i in aging})
-    # --- stage b: the rest from slip lengths, aging held but for the level slips
-    # rejuvenate to (μmin), which sets slip length with A and which triggers alone
-    # cannot tell from τ when the rests are long
-    other = [i for i, n in enumerate(tm.names) if i not in aging or n in _SLIP_LEVEL]
+    # --- stage b: the rest from slip lengths, aging held
+    other = [i for i, n in enumerate(tm.names) if i not in aging]
     if other:
         rng = np.random.default_rng(seed)
         ev = tab["ev"] if len(tab["ev"]) else np.arange(prob.E)
@@ -183,18 +152,9 @@ def staged_start(prob, start_values: dict, max_slips: int = 80, seed: int = 0) -
             return (Y[0] - dx_data) / sig
 
         if len(ev) >= len(other):
-            for i in other:
-                if tm.names[i] not in _SLIP_LEVEL:
-                    th[i] = _scan(fb, tm, other, i, th)
             th, sol = _solve(fb, tm, np.array(other), th, th_start)
             info["slips"] = dict(cost=float(sol.cost), nfev=int(sol.nfev), n=len(ev),
                                  values={tm.names[i]: float(tm.from_scaled(th)[i]) for i in other})
-            # --- stage c: the aging again, the slip level held at what slip lengths say
-            again = [i for i in aging if i not in other]
-            if use_triggers and again and any(tm.names[i] in _SLIP_LEVEL for i in other):
-                th, sol = _solve(aging_fun(again), tm, np.array(again), th, th_start)
-                info["aging_again"] = dict(cost=float(sol.cost), nfev=int(sol.nfev), n=len(tab["ev"]),
-                                           values={tm.names[i]: float(tm.from_scaled(th)[i]) for i in again})
     out = dict(zip(tm.names, map(float, tm.from_scaled(th))))
     if "mu_min" in out and "mu_max" in out and out["mu_min"] >= out["mu_max"]:
         out["mu_min"] = 0.95 * out["mu_max"]
