@@ -85,7 +85,6 @@ class ArcFunctions:
         self.n_in = len(self.input_names)
         self.index = {n: i for i, n in enumerate(self.input_names)}
         self.arc = compiled(lambda o: self._build(False, o), tag="arc")
-        self._strict = None  # the arc at STRICT_ABSTOL, built when an arc first needs it
         self.n_retried = 0  # arcs integrated again at STRICT_ABSTOL
         self.failures: list = []  # (inputs, message) of arcs that could not be integrated
         self.typical = np.ones(self.n_in)  # perturbation scale per input
@@ -94,16 +93,16 @@ class ArcFunctions:
 
             self.typical[3 + j] = SPECS[n].scale
 
-    def _integrator(self, tape: bool, abstol: float | None = None) -> ca.Function:
+    def _integrator(self, tape: bool) -> ca.Function:
         d = arc_dae(self.model)
         dae = {k: d[k] for k in ("x", "u", "t", "p", "ode", "zero")}
-        opts = dict(reltol=self.reltol, abstol=self.abstol if abstol is None else abstol, max_num_steps=200_000,
+        opts = dict(reltol=self.reltol, abstol=self.abstol, max_num_steps=200_000,
                     transition=transition(self.model, 1), max_events=2_000, event_tol=1e-12)
         if tape:
             opts["max_tape_steps"] = _TAPE_STEPS
         return ca.integrator("arc_int", "rosenbrock", dae, 0.0, [1.0], opts)
 
-    def _build(self, jac: bool, fopts: dict, abstol: float | None = None) -> ca.Function:
+    def _build(self, jac: bool, fopts: dict) -> ca.Function:
         law = self.model.law
         a = ca.MX.sym("a", self.n_in)
         ix = self.index
@@ -114,7 +113,7 @@ class ArcFunctions:
         p = ca.vertcat(pm, k, nb, 1.0, duration_ms, fp)
         v_stick = pm[self.param_names.index("v_stick")]
         x0 = ca.vertcat(a[0], 0, a[2] / law.state_scale, 1, ca.if_else(v_stick > 0, 0, 1), 0, 0, 0)
-        xf = self._integrator(jac, abstol)(x0=x0, p=p, u=a[0] + a[1])["xf"]
+        xf = self._integrator(jac)(x0=x0, p=p, u=a[0] + a[1])["xf"]
         moving = xf[3]
         # after the stop the frozen-time clock runs: stop time = horizon − frozen time
         stop_ms = ca.if_else(moving > 0.5, duration_ms, duration_ms - xf[5])
@@ -149,10 +148,9 @@ class ArcFunctions:
         out = self._run(self.arc, A, threads, record=self.abstol <= STRICT_ABSTOL)
         bad = ~self.plausible(A, out)
         if bad.any() and self.abstol > STRICT_ABSTOL:
-            if self._strict is None:
-                self._strict = compiled(lambda o: self._build(False, o, STRICT_ABSTOL), tag="arc")
+            strict = arc_functions(self.model, self.reltol, STRICT_ABSTOL)
             self.n_retried += int(bad.sum())
-            out[:, bad] = self._run(self._strict, A[:, bad], 1, record=True)
+            out[:, bad] = self._run(strict.arc, A[:, bad], 1, record=True)
         return out
 
     def plausible(self, A: np.ndarray, out: np.ndarray) -> np.ndarray:
