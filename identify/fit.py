@@ -420,6 +420,9 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         raise FitError("no run could be used: " + "; ".join(f"{n}: {why}" for n, why in excluded) if excluded
                        else "no run could be used", excluded)
     say(f"{len(run_data)} run(s) used, {len(excluded)} left out; building the NLP")
+    for r in run_data:
+        if r.stick_edge(values):
+            say(f"warning: {r.name}: {r.stick_edge(values)}")
     prob = Problem(run_data, model, values, opts).build()
     prob.progress = say
     start_given, staged = dict(start), None
@@ -477,9 +480,12 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
             best, start = results[-1], other[0]  # the report's init: where the kept solve began
     if not np.isfinite(best["f"]):
         raise FitError("every solver start failed: " + "; ".join(r["status"] for r in results))
+    t_seq = time.perf_counter()
     prob, best = decide_sequence(prob, best, model, values, opts, say, fresh_start=start_given)
+    t_seq = time.perf_counter() - t_seq
     say("covariance")
     prob.progress = None  # the result keeps the problem; the caller's callback is not its business
     result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,
                           time.perf_counter() - wall0)
+    result.timing["sequence_s"] = float(t_seq)
     return result

@@ -186,6 +186,9 @@ class FitResult:
         lines.append(f"    total {t['total_s']:.2f} s: arcs {t['arc_s']:.2f} s ({t['arc_calls']} batches), "
                      f"arc Jacobians {t['jac_s']:.2f} s ({t['jac_calls']}), solver linear algebra, "
                      f"assembly and the rest {max(t['total_s'] - t['arc_s'] - t['jac_s'], 0):.2f} s")
+        if t.get("sequence_s"):
+            lines.append(f"    of the total, deciding the mode sequence (moved triggers, missed slips, "
+                         f"trials): {t['sequence_s']:.2f} s")
         return "\n".join(lines)
 
     def to_json(self) -> dict:
@@ -299,12 +302,14 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
                                           free=False, unit=SPECS[n].unit,
                                           true=float(true_values[n]) if true_values and n in true_values else None)
     runs = []
+    fitted = {**prob.values, **{n: p.value for n, p in params.items()}}
     for rd in prob.runs:
         ev = rd.events
         runs.append(dict(name=rd.name, used=True, reason=None, kind=rd.kind,
                          n_slips=int(len(rd.trigger_steps)) if rd.kind == "events" else 0,
                          regime=getattr(ev, "regime", "?"), noise_nm=rd.sigma * 1e9,
-                         warnings=list(getattr(ev, "warnings", []))))
+                         warnings=list(getattr(ev, "warnings", []))
+                         + ([rd.stick_edge(fitted)] if rd.stick_edge(fitted) else [])))
     for name, why in excluded:
         runs.append(dict(name=name, used=False, reason=why, kind=None, n_slips=0, regime=None, noise_nm=None,
                          warnings=[]))

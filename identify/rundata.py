@@ -47,6 +47,26 @@ class RunData:
     steady_se: float = float("nan")
     events: Any = None
 
+    def stick_edge(self, values: dict) -> str | None:
+        """Why this run sits on the stick threshold's knife edge, or None.
+
+        With the stick option (v_stick > 0) a sliding block is held once slower than
+        v_stick. When the puller is faster than that, a slip ends only if the block's
+        speed dips below the threshold in the ripple the steps give it: at one set of
+        parameters a slip stops within milliseconds, at a nearby one it turns into steady
+        sliding over the whole arc, a jump in the slip length no gradient step can
+        follow. Measured (README, Speed): a 2.13 N/m, 20 µN, 300 Hz run (13.8 µm/s
+        against 10 µm/s) made a 5-run fit crawl at step lengths ≤ 1e-2 because of it.
+        """
+        v_stick = float(values.get("v_stick", 0.0))
+        v_pull = self.step_nominal * float(values.get("step_scale", 1.0)) * self.fp
+        if self.kind != "events" or v_stick <= 0 or v_pull < v_stick:
+            return None
+        return (f"the puller's speed {v_pull * 1e6:.3g} µm/s is above the stick threshold "
+                f"v_stick = {v_stick * 1e6:.3g} µm/s: whether a slip ends hangs on the block dipping "
+                "below it between steps, which the parameters decide discontinuously (a slip stops "
+                "within ms, or slides on); the fit may crawl and lean on this run")
+
 
 def _resolved_slips(ev) -> bool:
     """Most of the block's travel happens in slips much longer than a puller step: the
