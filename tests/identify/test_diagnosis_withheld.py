@@ -1,7 +1,8 @@
 """The diagnosis on data whose effect the baseline does not have (slow: full diagnoses).
 
-Data: :func:`identify.withheld.withheld_dataset` — the bundled conditions (8 runs, 90 nm,
-two frames per step) with one effect on. The confusion table over every effect and the
+Data: :func:`identify.withheld.withheld_dataset` — eight of the bundled conditions (the
+300 Hz run at 100 Hz, off the stick threshold's knife edge; 8 runs, 90 nm, two frames
+per step) with one effect on. The confusion table over every effect and the
 detection limits are in ``tests/bench/bench_diagnosis.py``.
 """
 
@@ -50,7 +51,7 @@ DAMPING_ABSORBED = pytest.mark.xfail(strict=True, reason=(
     "noise 21 nm): the baseline's velocity strengthening A absorbs it; verdict adequate, p = 0.98"))
 
 
-@pytest.mark.parametrize("eid", ["drift",  # named since d54fbfe (README: one run set aside)
+@pytest.mark.parametrize("eid", ["drift",  # named with the 300 Hz run at 100 Hz (withheld.CONDITIONS)
                                  "step_size",
                                  pytest.param("damping", marks=DAMPING_ABSORBED), "load_offset",
                                  "spring_nonlinearity"])
