@@ -305,11 +305,11 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
     fitted = {**prob.values, **{n: p.value for n, p in params.items()}}
     for rd in prob.runs:
         ev = rd.events
+        edge = rd.stick_edge(fitted)  # a model-side warning beside the event extraction's
         runs.append(dict(name=rd.name, used=True, reason=None, kind=rd.kind,
                          n_slips=int(len(rd.trigger_steps)) if rd.kind == "events" else 0,
                          regime=getattr(ev, "regime", "?"), noise_nm=rd.sigma * 1e9,
-                         warnings=list(getattr(ev, "warnings", []))
-                         + ([rd.stick_edge(fitted)] if rd.stick_edge(fitted) else [])))
+                         warnings=list(getattr(ev, "warnings", [])) + ([edge] if edge else [])))
     for name, why in excluded:
         runs.append(dict(name=name, used=False, reason=why, kind=None, n_slips=0, regime=None, noise_nm=None,
                          warnings=[]))

@@ -49,7 +49,7 @@ CAL_CONDITIONS = [(2.13, 5, 100), (20.3, 30, 30), (20.3, 30, 100), (2.13, 10, 10
 # solver crawling along a flat valley, not the speed of a fit. Every run is pulled slower
 # than V_STICK: the third run was (2.13, 20, 300) until 2026-11-23, 13.8 µm/s, on the
 # stick threshold's knife edge (RunData.stick_edge): the 5-run fit crawled there at step
-# lengths <= 1e-2 whatever its start, which measures that discontinuity, not speed
+# lengths <= 1e-2 from either start tried: a measure of that discontinuity, not of speed
 SPEED_CONDITIONS = [(2.13, 5, 100), (20.3, 30, 30), (20.3, 30, 200), (20.3, 30, 100), (2.13, 5, 30),
                     (20.3, 60, 100), (2.13, 10, 100), (2.13, 30, 10), (20.3, 30, 60), (2.13, 10, 30)]
 

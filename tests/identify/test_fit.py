@@ -122,6 +122,11 @@ def test_report_and_json(small_fit):
     assert js["parameters"]["v_stick"]["free"] is False
     assert {"status", "iterations", "wall_time_s"} <= set(js["solver"])
     assert all(isinstance(r["warnings"], list) for r in js["runs"])
+    # the time spent deciding the mode sequence is part of the fit's wall time
+    t = js["timing"]
+    assert 0 < t["sequence_s"] <= t["total_s"] and "deciding the mode sequence" in text
+    # both runs are pulled slower than the stick threshold: no knife-edge warning
+    assert not any("stick threshold" in w for r in js["runs"] for w in r["warnings"])
 
 
 def test_report_shows_what_the_event_extraction_warned(small_fit):
