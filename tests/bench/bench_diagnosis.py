@@ -12,7 +12,7 @@ One JSON line per case is appended as soon as it is done (nothing is lost to a s
 the table is printed at the end. The detection limit of an effect is the smallest
 magnitude at which it is still named (or reported confounded).
 
-``speed``: one full diagnosis of the 8-run bundled-conditions set with all candidates and
+``speed``: one full diagnosis of the 8-run withheld-conditions set (identify.withheld.CONDITIONS) with all candidates and
 leave-one-run-out, against the time of its own baseline fit measured in the same run.
 """
 
