@@ -421,8 +421,9 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
                        else "no run could be used", excluded)
     say(f"{len(run_data)} run(s) used, {len(excluded)} left out; building the NLP")
     for r in run_data:
-        if r.stick_edge(values):
-            say(f"warning: {r.name}: {r.stick_edge(values)}")
+        edge = r.stick_edge(values)
+        if edge:
+            say(f"warning: {r.name}: {edge}")
     prob = Problem(run_data, model, values, opts).build()
     prob.progress = say
     start_given, staged = dict(start), None

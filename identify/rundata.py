@@ -55,7 +55,7 @@ class RunData:
         speed dips below the threshold in the ripple the steps give it: at one set of
         parameters a slip stops within milliseconds, at a nearby one it turns into steady
         sliding over the whole arc, a jump in the slip length no gradient step can
-        follow. Measured (README, Speed): a 2.13 N/m, 20 µN, 300 Hz run (13.8 µm/s
+        follow. Measured (README, the stick question): a 2.13 N/m, 20 µN, 300 Hz run (13.8 µm/s
         against 10 µm/s) made a 5-run fit crawl at step lengths ≤ 1e-2 because of it.
         """
         v_stick = float(values.get("v_stick", 0.0))
