@@ -1,5 +1,6 @@
 """The arcs' retry at a strict tolerance (identify.arcs): an arc that failed at abstol
-1e-6 made a start's χ² infinite on the 5-run speed benchmark."""
+1e-6 made a start's χ² infinite on the 5-run speed benchmark. And their memory of
+arcs already integrated."""
 
 import numpy as np
 import pytest
@@ -36,6 +37,7 @@ def test_an_arc_that_ends_where_no_slip_can_is_integrated_again_strictly():
     loose = arcs._run(arcs.arc, A, 1, record=False)
     assert not arcs.plausible(A, loose)[0]  # the failure this guards against is still there
     before = arcs.n_retried
+    arcs.forget()  # (integrated afresh, not taken from an earlier test's)
     y = arcs.evaluate(A)
     assert arcs.n_retried == before + 1
     assert y[0, 0] == pytest.approx(5.54, abs=0.02)
@@ -51,3 +53,24 @@ def test_plausible_bounds_the_slip_by_the_springs_elongation_and_the_pullers_tra
     out = np.zeros((5, 4))
     out[0] = [5.5, bound * 0.99, bound * 1.01, np.nan]
     assert arcs.plausible(A, out).tolist() == [True, True, False, False]
+
+
+def test_arcs_integrated_before_are_taken_from_memory_bit_for_bit():
+    """A batch of which some columns were integrated before: only the new ones are
+    integrated, a column repeated within the batch once, and every output is exactly what
+    an integration without the memory gives."""
+    arcs = _arcs()
+    arcs.forget()
+    A = _columns(arcs, 6)
+    A[arcs.index["e0_um"]] += np.array([0.0, 0.5, 1.0, 1.5, 1.0, 2.0])  # columns 2 and 4 the same
+    first = arcs.evaluate(A[:, :3])
+    n0 = arcs.n_integrated
+    both = arcs.evaluate(A)
+    assert arcs.n_integrated - n0 == 2  # columns 3 and 5; 4 repeats 2, 0-2 are remembered
+    assert np.array_equal(both[:, :3], first)
+    n1 = arcs.n_integrated
+    assert np.array_equal(both, arcs._integrate(A, 1))  # (the path without the memory)
+    arcs.forget()
+    n2 = arcs.n_integrated
+    assert np.array_equal(arcs.evaluate(A), both) and arcs.n_integrated - n2 == 5
+    assert n2 - n1 == 6
