@@ -284,8 +284,9 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
     moved left out), missed slips inserted, then the detector's ambiguous triggers and
     whatever still misfits tried (:mod:`identify.sequence`), each change re-solved.
     Returns (problem, solution) with the counts in ``triggers_moved``, ``slips_inserted``
-    and ``slips_removed``. ``fresh_start`` (parameter values): after inserting slips, also
-    solve afresh from the staged start of those values (:func:`fit` passes its start).
+    and ``slips_removed``, and in ``restarts`` each fresh solve's ½χ² against the warm
+    one's. ``fresh_start`` (parameter values): after inserting slips, also solve afresh
+    from the staged start of those values (:func:`fit` passes its start).
     The diagnosis calls it again for a model with a named effect, whose sequence the
     baseline had bent to absorb the effect."""
     # the mode sequence: move triggers the model places a step or two off, and leave
@@ -293,6 +294,7 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
     # (a slip the detection missed is inserted where the model predicts it and the
     # frames show it, once no trigger moves any more)
     refined = inserted = 0
+    restarts: list[dict] = []  # the fresh solves after inserted slips, against the warm ones
     for round_ in range(6):
         changes, n_moved = prob.refine_triggers(best["w"])
         n_added = 0
@@ -317,7 +319,14 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
                 log.info("fresh start after inserting slips failed: %s", err)
                 afresh = dict(f=np.inf, iterations=0, wall_s=0.0)
             both_it, both_s = sol["iterations"] + afresh["iterations"], sol["wall_s"] + afresh["wall_s"]
+            restarts.append(dict(slips_inserted=int(n_added), warm_half_chi2=float(sol["f"]),
+                                 warm_suspect=_suspect(prob, sol), fresh_half_chi2=float(afresh["f"]),
+                                 fresh_s=float(afresh["wall_s"])))
             sol = min((sol, afresh), key=lambda r: r["f"] if np.isfinite(r["f"]) else np.inf)
+            restarts[-1]["kept"] = "fresh" if sol is afresh else "warm"
+            log.info("fresh start after inserting slips: ½χ² %.6g (warm %.6g%s), %s kept", afresh["f"],
+                     restarts[-1]["warm_half_chi2"], f", suspect: {restarts[-1]['warm_suspect']}"
+                     if restarts[-1]["warm_suspect"] else "", restarts[-1]["kept"])
             sol["iterations"], sol["wall_s"] = both_it, both_s
         sol["iterations"] += best["iterations"]
         sol["wall_s"] += best["wall_s"]
@@ -331,6 +340,7 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
     best["triggers_moved"] = refined + n_alt + n_seq["moved"]
     best["slips_inserted"] = inserted + n_seq["inserted"]
     best["slips_removed"] = n_seq["removed"]
+    best["restarts"] = restarts
     return prob, best
 
 

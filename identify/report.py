@@ -328,6 +328,7 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
                     wall_time_s=float(wall_s), triggers_moved=int(best.get("triggers_moved", 0)),
                     slips_inserted=int(best.get("slips_inserted", 0)),
                     slips_removed=int(best.get("slips_removed", 0)),
+                    restarts=list(best.get("restarts", [])),
                     method=("Gauss-Newton SQP (Gauss-Newton Hessian, l1-merit line search)"
                             if prob.opts.solver == "gauss-newton" else "Ipopt (Gauss-Newton Hessian)")),
         multistart=dict(starts=len(results), best_found=found, costs=[float(x["f"]) for x in results]),

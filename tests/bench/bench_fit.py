@@ -110,7 +110,8 @@ def _one_repeat(args):
         return dict(seed=seed, error=f"{type(err).__name__}: {err}")
     out = dict(seed=seed, wall_s=time.perf_counter() - t0, success=bool(res.solver["success"]),
                iterations=res.solver["iterations"], status=res.solver["status"], reduced_chi2=res.redchi,
-               start=res.start_source, normal_loads_uN=[c[1] for c in conds])
+               start=res.start_source, normal_loads_uN=[c[1] for c in conds],
+               slips_inserted=res.solver.get("slips_inserted", 0), restarts=res.solver.get("restarts", []))
     # every covariance at the same solution: one calibration measures them all
     other = {mode: res.uncertainty(mode) for mode in COVARIANCES}
     for n in FREE:
