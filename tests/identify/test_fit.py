@@ -138,6 +138,18 @@ def test_report_shows_what_the_event_extraction_warned(small_fit):
     assert "warning: inside its plateaus the block moves backward" in res.report()
 
 
+def test_report_and_json_show_the_fresh_solve_after_inserted_slips(small_fit):
+    import copy
+
+    assert small_fit.solver["restarts"] == []  # (no slip was missed in the small fit)
+    res = copy.copy(small_fit)
+    res.solver = dict(small_fit.solver, restarts=[dict(slips_inserted=6, warm_half_chi2=1238.74, warm_suspect="",
+                                                       fresh_half_chi2=1237.28, fresh_s=103.0, kept="fresh")])
+    assert "after insertion    = fresh solve ½χ² 1237.28, warm 1238.74: fresh kept" in res.report()
+    js = json.loads(json.dumps(res.to_json(), default=float))
+    assert js["solver"]["restarts"][0]["kept"] == "fresh"
+
+
 def test_plots_written(small_fit, tmp_path):
     paths = small_fit.save_plots(tmp_path)
     names = {p.name for p in paths}
