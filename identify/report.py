@@ -132,8 +132,10 @@ class FitResult:
             f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved, "
             f"{s.get('slips_inserted', 0)} missed slip(s) inserted, "
             f"{s.get('slips_removed', 0)} spurious slip(s) removed by the fit",
-            *[f"    after insertion    = fresh solve ½χ² {x['fresh_half_chi2']:.6g}, warm {x['warm_half_chi2']:.6g}: "
-              f"{x['kept']} kept" for x in s.get("restarts", [])],
+            *[f"    after insertion    = {x['slips_inserted']} slip(s): solved afresh, ½χ² {x['fresh_half_chi2']:.6g}"
+              + (f" ({x['fresh_suspect']}; from the warm point {x['warm_half_chi2']:.6g}, {x['kept']} kept)"
+                 if x.get("warm_half_chi2") is not None else "")
+              for x in s.get("restarts", [])],
             f"    chi-square         = {self.chi2:.6g}",
             f"    reduced chi-square = {self.redchi:.6g}  (dof = {self.dof})",
             f"    Akaike info crit   = {self.aic:.6g}",

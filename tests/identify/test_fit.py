@@ -143,11 +143,17 @@ def test_report_and_json_show_the_fresh_solve_after_inserted_slips(small_fit):
 
     assert small_fit.solver["restarts"] == []  # (no slip was missed in the small fit)
     res = copy.copy(small_fit)
-    res.solver = dict(small_fit.solver, restarts=[dict(slips_inserted=6, warm_half_chi2=1238.74, warm_suspect="",
-                                                       fresh_half_chi2=1237.28, fresh_s=103.0, kept="fresh")])
-    assert "after insertion    = fresh solve ½χ² 1237.28, warm 1238.74: fresh kept" in res.report()
+    res.solver = dict(small_fit.solver, restarts=[
+        dict(slips_inserted=6, fresh_half_chi2=1237.28, fresh_suspect="", fresh_s=103.0, warm_half_chi2=None,
+             kept="fresh"),
+        dict(slips_inserted=1, fresh_half_chi2=1240.5, fresh_suspect="solver: Stalled, reduced χ² 1.3",
+             fresh_s=50.0, warm_half_chi2=1237.2, kept="warm")])
+    text = res.report()
+    assert "after insertion    = 6 slip(s): solved afresh, ½χ² 1237.28\n" in text
+    assert ("after insertion    = 1 slip(s): solved afresh, ½χ² 1240.5 (solver: Stalled, reduced χ² 1.3; "
+            "from the warm point 1237.2, warm kept)") in text
     js = json.loads(json.dumps(res.to_json(), default=float))
-    assert js["solver"]["restarts"][0]["kept"] == "fresh"
+    assert [x["kept"] for x in js["solver"]["restarts"]] == ["fresh", "warm"]
 
 
 def test_plots_written(small_fit, tmp_path):
