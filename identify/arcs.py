@@ -95,7 +95,11 @@ class ArcFunctions:
         self.n_retried = 0  # arcs integrated again at STRICT_ABSTOL
         self.n_integrated = 0  # arcs integrated (not taken from the memory)
         self._memo: dict = {}  # input column (bytes) -> outputs (see MEMO_MAX)
-        self.failures: list = []  # (inputs, message) of arcs that could not be integrated
+        # arcs that could not be integrated even at STRICT_ABSTOL (NaN outputs, the trial
+        # point rejected): how many, and the last one's (inputs, message); a fit reports
+        # its own share (identify.fit)
+        self.n_failed = 0
+        self.last_failure: tuple | None = None
         self.typical = np.ones(self.n_in)  # perturbation scale per input
         for j, n in enumerate(self.param_names):
             from .params import SPECS
@@ -210,7 +214,8 @@ class ArcFunctions:
                     out[:, j] = np.array(f(A[:, j])).ravel()
                 except RuntimeError as err:
                     if record:
-                        self.failures.append((A[:, j].copy(), str(err).strip().splitlines()[-1]))
+                        self.n_failed += 1
+                        self.last_failure = (A[:, j].copy(), str(err).strip().splitlines()[-1])
             return out
 
     def evaluate_jacobian(self, A: np.ndarray, threads: int = 1, rows=None,

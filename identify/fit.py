@@ -453,6 +453,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         if edge:
             say(f"warning: {r.name}: {edge}")
     prob = Problem(run_data, model, values, opts).build()
+    failed0 = prob.arcs.n_failed
     prob.progress = say
     start_given, staged = dict(start), None
     if opts.staged_start:
@@ -517,4 +518,10 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,
                           time.perf_counter() - wall0)
     result.timing["sequence_s"] = float(t_seq)
+    # arcs the integrator could not finish at any tolerance: their trial points were
+    # rejected, which a solve that stalls or fails may owe to them
+    n_failed = prob.arcs.n_failed - failed0
+    result.solver["arcs_failed"] = int(n_failed)
+    if n_failed and prob.arcs.last_failure is not None:
+        result.solver["arc_failure"] = prob.arcs.last_failure[1]
     return result

@@ -132,6 +132,8 @@ class FitResult:
             f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved, "
             f"{s.get('slips_inserted', 0)} missed slip(s) inserted, "
             f"{s.get('slips_removed', 0)} spurious slip(s) removed by the fit",
+            *([f"    arcs not finished  = {s['arcs_failed']} at trial points the solver rejected "
+               f"(last: {s.get('arc_failure', '?')})"] if s.get("arcs_failed") else []),
             *[f"    after insertion    = {x['slips_inserted']} slip(s): solved afresh, ½χ² {x['fresh_half_chi2']:.6g}"
               + (f" ({x['fresh_suspect']}; from the warm point {x['warm_half_chi2']:.6g}, {x['kept']} kept)"
                  if x.get("warm_half_chi2") is not None else "")

@@ -74,3 +74,23 @@ def test_arcs_integrated_before_are_taken_from_memory_bit_for_bit():
     n2 = arcs.n_integrated
     assert np.array_equal(arcs.evaluate(A), both) and arcs.n_integrated - n2 == 5
     assert n2 - n1 == 6
+
+
+class _Failing:
+    """An arc Function whose every call fails, as the integrator does on extreme inputs."""
+
+    def map(self, n, *args):
+        return self
+
+    def __call__(self, A):
+        raise RuntimeError("Error in Function::call for 'arc'\nrosenbrock: step size underflow at t = 0.3")
+
+
+def test_arcs_that_cannot_be_integrated_are_counted_with_the_last_message():
+    arcs = _arcs()
+    n0 = arcs.n_failed
+    out = arcs._run(_Failing(), _columns(arcs, 3), 1, record=True)
+    assert np.isnan(out).all()
+    assert arcs.n_failed - n0 == 3
+    assert arcs.last_failure[1] == "rosenbrock: step size underflow at t = 0.3"
+    assert arcs.last_failure[0][arcs.index["fp"]] == 300.0  # the inputs, to reproduce it

@@ -138,17 +138,19 @@ def test_report_shows_what_the_event_extraction_warned(small_fit):
     assert "warning: inside its plateaus the block moves backward" in res.report()
 
 
-def test_report_and_json_show_the_fresh_solve_after_inserted_slips(small_fit):
+def test_report_and_json_show_the_solves_after_inserted_slips_and_failed_arcs(small_fit):
     import copy
 
     assert small_fit.solver["restarts"] == []  # (no slip was missed in the small fit)
+    assert small_fit.solver["arcs_failed"] == 0 and "arcs not finished" not in small_fit.report()
     res = copy.copy(small_fit)
-    res.solver = dict(small_fit.solver, restarts=[
+    res.solver = dict(small_fit.solver, arcs_failed=2, arc_failure="rosenbrock: step size underflow", restarts=[
         dict(slips_inserted=6, fresh_half_chi2=1237.28, fresh_suspect="", fresh_s=103.0, warm_half_chi2=None,
              kept="fresh"),
         dict(slips_inserted=1, fresh_half_chi2=1240.5, fresh_suspect="solver: Stalled, reduced χ² 1.3",
              fresh_s=50.0, warm_half_chi2=1237.2, kept="warm")])
     text = res.report()
+    assert "arcs not finished  = 2 at trial points the solver rejected (last: rosenbrock: step size underflow)" in text
     assert "after insertion    = 6 slip(s): solved afresh, ½χ² 1237.28\n" in text
     assert ("after insertion    = 1 slip(s): solved afresh, ½χ² 1240.5 (solver: Stalled, reduced χ² 1.3; "
             "from the warm point 1237.2, warm kept)") in text
