@@ -276,6 +276,15 @@ def _start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict
 
 
 SUSPECT_REDCHI = 2.0  # a solution's reduced χ² above which the fit tries another start
+# After inserted slips, a fresh solve that did not converge is still taken as it is when
+# its χ² is within the noise (below this upper quantile of χ² with the fit's dof): the
+# solver stalls at kinked arcs (a slow slip grazing the stop speed) as well as in another
+# basin. Measured: on the 8-run withheld-conditions set the fresh solve ended
+# Line_Search_Failed at reduced χ² 0.998 and the warm solve ended at the same ½χ²
+# (239.387) 28 s later; the calibration's five fresh solves that did not converge sat at
+# 0.985 (kept, 0.001 below the warm one) and at 1.28-1.55 with ~3500 degrees of freedom
+# (warm solved, kept in seed 30 by 881 of ½χ²), where this quantile (p = 1e-3) lies near 1.07.
+NOISE_P = 1e-3
 
 
 def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_start: dict | None = None):
@@ -329,8 +338,9 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
 def _after_insertion(prob, w_warm, fresh_start: dict, n_added: int, opts, restarts: list) -> dict:
     """The solve after inserting missed slips: from a fresh staged start of ``fresh_start``
     on the repaired sequence, and from the warm point ``w_warm`` (the solution before,
-    carried over) only when that looks wrong (:func:`_suspect`); the better is kept, and
-    the comparison appended to ``restarts``.
+    carried over) only when that looks wrong (:func:`_suspect`; a solve that did not
+    converge but fits within the noise is taken, :data:`NOISE_P`); the better is kept,
+    and the comparison appended to ``restarts``.
 
     Why fresh first: a missed slip bends the solution before it (and the staged start
     made from the merged plateaus) far off. On the 10-run speed benchmark the warm solve
@@ -346,8 +356,16 @@ def _after_insertion(prob, w_warm, fresh_start: dict, n_added: int, opts, restar
     except Exception as err:  # the warm solve decides
         log.info("fresh start after inserting slips failed: %s", err)
         sol = dict(w=w_warm, f=np.inf, status=f"failed: {err}", success=False, iterations=0, wall_s=0.0)
-    rec = dict(slips_inserted=n_added, fresh_half_chi2=float(sol["f"]), fresh_suspect=_suspect(prob, sol),
-               fresh_s=float(sol["wall_s"]), warm_half_chi2=None, kept="fresh")
+    why = _suspect(prob, sol)
+    if why and np.isfinite(sol["f"]):
+        from scipy import stats
+
+        chi2 = 2 * sol["f"] + prob.chi2_constant()
+        if chi2 <= SUSPECT_REDCHI * prob.dof() and chi2 <= stats.chi2.isf(NOISE_P, prob.dof()):
+            log.info("fresh solve after inserting slips not converged (%s) but within the noise: taken", why)
+            why = ""
+    rec = dict(slips_inserted=n_added, fresh_half_chi2=float(sol["f"]), fresh_suspect=why,
+               fresh_status=str(sol.get("status")), fresh_s=float(sol["wall_s"]), warm_half_chi2=None, kept="fresh")
     if rec["fresh_suspect"]:
         warm = prob.solve(w_warm)
         rec["warm_half_chi2"] = float(warm["f"])

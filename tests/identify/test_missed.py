@@ -89,9 +89,12 @@ class _Stub:
 @pytest.mark.parametrize("ends, solved, kept", [
     # the fresh solve fits (reduced χ² 1): the warm point is not solved
     (dict(fresh=(50.0, True), warm=(40.0, True)), ["fresh"], "fresh"),
-    # the fresh solve did not converge: the warm point too, the better kept
-    (dict(fresh=(50.0, False), warm=(49.0, True)), ["fresh", "warm"], "warm"),
-    (dict(fresh=(50.0, False), warm=(51.0, True)), ["fresh", "warm"], "fresh"),
+    # the fresh solve did not converge, χ² 160 on 100 dof (above its 99.9 % quantile,
+    # 149): the warm point too, the better kept
+    (dict(fresh=(80.0, False), warm=(79.0, True)), ["fresh", "warm"], "warm"),
+    (dict(fresh=(80.0, False), warm=(81.0, True)), ["fresh", "warm"], "fresh"),
+    # not converged, but χ² 100 on 100 dof: within the noise, taken as it is
+    (dict(fresh=(50.0, False), warm=(40.0, True)), ["fresh"], "fresh"),
     # the fresh solve misfits (reduced χ² 3) or fails: the warm point decides
     (dict(fresh=(150.0, True), warm=(50.0, True)), ["fresh", "warm"], "warm"),
     (dict(fresh=(None, False), warm=(50.0, True)), ["fresh", "warm"], "warm"),
