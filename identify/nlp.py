@@ -713,10 +713,10 @@ class Problem:
             # wait for ever when finite-difference arc Jacobians are noisy. Not the step's
             # predicted gain −½∇f·d = ½‖Jᵣd‖² − ½λᵀg: at feasibility within the arcs'
             # integration noise (|g| ~ 0.1 pm, λ ~ 3e4 per µm of slip) its λᵀg term is that
-            # noise times the multipliers, ~0.05 of ½χ², which no step can remove.
-            # Measured on the 10-run speed benchmark's first solve: χ² settled by
-            # iteration 7-11, then 12 more iterations (55 s) of rejected steps at
-            # |g| ~ 1e-7 µm, ½χ² moving ±0.03, before the stall rule stopped it.
+            # noise times the multipliers, up to a few hundredths of ½χ², which no step
+            # can remove. Measured on the 5-run speed benchmark: 566 → 435 s, the same
+            # estimates (its first solve stopped at iteration 10, where the step moved the
+            # model by 9e-6 of ½χ² and promised 2e-4, instead of 13).
             feas0 = float(np.abs(g).max()) if g.size else 0.0
             stat_tol, feas_tol = self.stat_tol, self.feas_tol
             dr = Jr @ d
