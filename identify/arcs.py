@@ -165,6 +165,7 @@ class ArcFunctions:
         keys = np.ascontiguousarray(A.T).view(np.dtype((np.void, 8 * A.shape[0]))).ravel().tolist()
         memo = self._memo
         found = [memo.get(k) for k in keys]
+        # (a loop over arcs, not samples: ~1 µs each against ~0.4 ms per integration)
         todo: dict = {}  # key -> first column needing it (a batch can repeat a column)
         for j, (k, y) in enumerate(zip(keys, found)):
             if y is None and k not in todo:

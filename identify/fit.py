@@ -358,15 +358,8 @@ def _after_insertion(prob, w_warm, fresh_start: dict, n_added: int, opts, restar
     except Exception as err:  # the warm solve decides
         log.info("fresh start after inserting slips failed: %s", err)
         sol = dict(w=w_warm, f=np.inf, status=f"failed: {err}", success=False, iterations=0, wall_s=0.0)
-    why = _suspect(prob, sol)
-    if why and np.isfinite(sol["f"]):
-        from scipy import stats
-
-        chi2 = 2 * sol["f"] + prob.chi2_constant()
-        if chi2 <= SUSPECT_REDCHI * prob.dof() and chi2 <= stats.chi2.isf(NOISE_P, prob.dof()):
-            log.info("fresh solve after inserting slips not converged (%s) but within the noise: taken", why)
-            why = ""
-    rec = dict(slips_inserted=n_added, fresh_half_chi2=float(sol["f"]), fresh_suspect=why,
+    rec = dict(slips_inserted=n_added, fresh_half_chi2=float(sol["f"]),
+               fresh_suspect=_suspect(prob, sol, noise_p=NOISE_P),
                fresh_status=str(sol.get("status")), fresh_s=float(sol["wall_s"]), warm_half_chi2=None, kept="fresh")
     if rec["fresh_suspect"]:
         warm = prob.solve(w_warm)
@@ -382,15 +375,25 @@ def _after_insertion(prob, w_warm, fresh_start: dict, n_added: int, opts, restar
     return sol
 
 
-def _suspect(prob, res) -> str:
+def _suspect(prob, res, noise_p: float | None = None) -> str:
     """Why a solution looks wrong ('' if it does not): the solver did not converge, or
-    the frames' noise does not explain it (reduced χ² > SUSPECT_REDCHI)."""
+    the frames' noise does not explain it (reduced χ² > SUSPECT_REDCHI). With
+    ``noise_p``, a solve that did not converge is not suspect when its χ² lies below the
+    upper ``noise_p`` quantile of χ² with the fit's degrees of freedom."""
     if not np.isfinite(res["f"]):
         return "no solution"
-    redchi = (2 * res["f"] + prob.chi2_constant()) / prob.dof()
+    chi2, dof = 2 * res["f"] + prob.chi2_constant(), prob.dof()
+    redchi = chi2 / dof
+    if redchi > SUSPECT_REDCHI:
+        return (f"solver: {res.get('status')}, " if not res.get("success") else "") + f"reduced χ² {redchi:.3g}"
     if not res.get("success"):
+        if noise_p is not None:
+            from scipy import stats
+
+            if chi2 <= stats.chi2.isf(noise_p, dof):
+                return ""
         return f"solver: {res.get('status')}, reduced χ² {redchi:.3g}"
-    return f"reduced χ² {redchi:.3g}" if redchi > SUSPECT_REDCHI else ""
+    return ""
 
 
 def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
