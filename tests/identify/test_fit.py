@@ -662,6 +662,65 @@ def test_a_solve_whose_line_search_always_fails_does_not_move(small_fit, monkeyp
     assert np.array_equal(res["w"], w)
 
 
+@pytest.mark.parametrize("off", ["plateau", "plateau, parameters held", "mu_max"])
+def test_the_damping_ladder_ends_when_no_damping_can_move_the_step(small_fit, monkeypatch, off):
+    """Every trial point worse; the damping (on the parameters alone) raised tenfold after
+    each rejection up to 1e8. Once the rest of the ladder could change what the step
+    promises by less than LADDER_REACH of the merit's slope, the solve ends, judged as at
+    the ladder's end (measured on the 8-run diagnosis baseline: twelve ladders climbed to
+    1e8, none accepted, ~25 s of 63). A plateau 1 nm off: the step is the states' (reach
+    2e-5 measured), one rejection instead of thirteen; with the parameters held (a run
+    solved alone), reach 0, one. μmax off: the step is the parameters', the damping
+    shrinks what it promises rung by rung (reach 0.20 … 0.11, 0.023, 0.0026 measured),
+    ten."""
+    import identify.nlp as nlp
+
+    prob, w, _ = _off_solution(small_fit)
+    fixed = None
+    if off == "mu_max":
+        w = small_fit.w.copy()
+        w[0] += 1e-3
+    elif off == "plateau, parameters held":
+        fixed = {i: w[i] for i in range(prob.n_theta)}
+    monkeypatch.setattr(prob, "feas_tol", 1.0)
+    _worse_away_from(w, prob, monkeypatch)
+    reach = []
+    true_reach = prob._damping_reach
+    monkeypatch.setattr(prob, "_damping_reach", lambda *a: reach.append(true_reach(*a)) or reach[-1])
+    res = prob.solve_gn(w, fixed)
+    assert np.array_equal(res["w"], w)
+    assert reach[-1] < nlp.LADDER_REACH <= min(reach[:-1], default=1.0), reach
+    assert res["iterations"] == len(reach) == {"plateau": 1, "plateau, parameters held": 1, "mu_max": 10}[off]
+    # the same judgement as the whole ladder's
+    monkeypatch.setattr(prob, "ladder_reach", 0.0)
+    full = prob.solve_gn(w, fixed)
+    assert full["iterations"] == 13 and (full["status"], full["success"]) == (res["status"], res["success"])
+
+
+def test_no_damping_reaches_a_step_whose_parameters_are_held(small_fit):
+    """A run solved alone, or a trial, holds the parameters: the damping has nothing to act
+    on (reach 0); with them free, μmax off, the step is the parameters' and the damping
+    could take a fifth of what it promises away (0.20 measured)."""
+    import identify.nlp as nlp
+
+    prob, w = small_fit.problem, small_fit.w.copy()
+    prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP)
+    w[0] += 1e-3
+    r, g, Jr, Jg = prob.evaluate(w, jac=True)
+    H, grad = (Jr.T @ Jr).tocsc(), Jr.T @ r
+    lbx, ubx = prob.bounds()
+    for held in (True, False):
+        free = np.arange(prob.n_theta if held else 0, prob.n_w)
+        free = free[lbx[free] < ubx[free]]
+        sol = nlp._kkt_solve(H, Jg, grad, g, free)
+        d = np.zeros(prob.n_w)
+        d[free] = sol[: len(free)]
+        nu = 1.1 * np.abs(sol[len(free):]).max()
+        dphi = grad @ d - nu * np.abs(g).sum()
+        reach = prob._damping_reach(d, H, Jg, grad, g, free, Jr, dphi)
+        assert reach == 0.0 if held else 0.1 < reach < 1.0, reach
+
+
 def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, monkeypatch):
     """At the solution, every trial point made worse: the damping rises until the damped
     step promises less than stat_tol. That is not convergence (the damping grew because
