@@ -83,12 +83,13 @@ PROGRESS_EVERY_S = 30.0  # a solve that runs longer reports its iterations this 
 STALL_ITERS = 4
 # the damping ladder ends at once (judged as at its end) when the rest of it could change
 # what a rejected step promises by less than this share of the merit's slope along it
-# (NLP._damping_reach): the Levenberg–Marquardt term acts on the parameter block only,
-# and a step the constraints drive (an arc on a kink asking its states to move) comes
-# back all but the same at every damping. Measured on the 8-run diagnosis baseline:
-# twelve ladders climbed to lm = 1e8, none accepted, ~25 s of its 63; their first rungs'
-# reach 0.014-0.067, falling below 0.02 by lm = 0.1. The smallest reach seen before an
-# accepted rung: 0.105 (a load-offset refit on four short runs, lm = 10 -> 100).
+# (Problem._damping_reach): the Levenberg–Marquardt term acts on the parameter block
+# only, and a step the constraints drive (an arc on a kink asking its states to move)
+# comes back all but the same at every damping. Measured on the 8-run diagnosis
+# baseline: twelve ladders climbed to lm = 1e8, none accepted, ~25 s of its 63; their
+# first rungs' reach 0.005-0.022, below 0.02 by lm = 0.1. The smallest reach seen before
+# an accepted rung: 0.099 (a load-offset refit on four short runs, lm = 10 -> 100); on
+# the 10-run speed benchmark every rung's 0.11-0.46.
 LADDER_REACH = 0.02
 MAX_SOC = 4  # second-order corrections tried for a rejected full step (Ipopt's max_soc)
 STALL_TOL = 0.01
