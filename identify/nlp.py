@@ -91,6 +91,10 @@ STALL_ITERS = 4
 # an accepted rung: 0.099 (a load-offset refit on four short runs, lm = 10 -> 100); on
 # the 10-run speed benchmark every rung's 0.11-0.46.
 LADDER_REACH = 0.02
+# ... and only when the trial points would move by less than this share of the step: a
+# parameter step along a flat direction changes the model little and the function perhaps
+# much (the baseline's ladders above: 0.026-0.055 on the rungs where they end)
+LADDER_STEP = 0.1
 MAX_SOC = 4  # second-order corrections tried for a rejected full step (Ipopt's max_soc)
 STALL_TOL = 0.01
 STALL_FEAS = 1e-4
@@ -673,9 +677,10 @@ class Problem:
         in a row stops: ``Stalled_Within_Tolerance`` (a success) if the constraints hold
         to ``STALL_FEAS`` and the linearised problem's solution is within ``STALL_TOL``
         of ½χ² of the point reached (on the undamped step, if the last was damped), else
-        ``Stalled``. A solve whose line search finds no step even at the largest damping
-        is judged the same way on its undamped step (``Stalled_Within_Tolerance``, else
-        ``Line_Search_Failed``).
+        ``Stalled``. A solve whose line search finds no step even at the largest damping,
+        or once no further damping could change the step (``ladder_reach``,
+        :meth:`_damping_reach`), is judged the same way on its undamped step
+        (``Stalled_Within_Tolerance``, else ``Line_Search_Failed``).
         """
         opts = self.opts
         t0 = time.perf_counter()
@@ -772,14 +777,15 @@ class Problem:
                         break
                 a *= 0.5
             if not accepted:
-                reach = self._damping_reach(d_gn, H, Jg, grad, g, free, Jr, dphi)
-                log.debug("GN it %d rejected: phi %.6g dphi %.3g |d| %.3g nu %.3g lm %.1e reach %.2g",
-                          it, phi0, dphi, np.max(np.abs(d)), nu, lm, reach)
+                reach, moves_step = self._damping_reach(d_gn, H, Jg, grad, g, free, Jr, dphi)
+                log.debug("GN it %d rejected: phi %.6g dphi %.3g |d| %.3g nu %.3g lm %.1e reach %.2g, %.2g",
+                          it, phi0, dphi, np.max(np.abs(d)), nu, lm, reach, moves_step)
                 lm = max(10 * lm, 1e-3)
-                if lm > 1e8 or reach < self.ladder_reach:
-                    # no step gains along any damping: judged like a stall, on the
-                    # undamped step (a candidate's refit that cannot move further but
-                    # whose Δnll is known to its tolerance has done its job)
+                if lm > 1e8 or (reach < self.ladder_reach and moves_step < LADDER_STEP):
+                    # no step gains along any damping (or none the rest of the ladder
+                    # could give differs enough): judged like a stall, on the undamped
+                    # step (a candidate's refit that cannot move further but whose Δnll
+                    # is known to its tolerance has done its job)
                     status, success = self._stalled_undamped(it, r0, Jr, Jg, grad, g, free, "Line_Search_Failed")
                     break
                 continue
@@ -805,23 +811,26 @@ class Problem:
         return dict(w=w, f=0.5 * float(r @ r), status=status, success=success, iterations=it,
                     wall_s=time.perf_counter() - t0)
 
-    def _damping_reach(self, d, H, Jg, grad, g, free, Jr, dphi) -> float:
-        """How much the rest of the damping ladder could change what a rejected step ``d``
-        promises: (m(d∞) − m(d)) / |∂φ|, m the Gauss–Newton model of ½χ²'s change
-        (∇f·x + ½‖Jᵣx‖²), d∞ the step with the parameter block held (the limit of infinite
-        damping: the Levenberg–Marquardt term acts on the parameters alone; the states'
-        part of the step, which the linearised constraints ask for, no damping removes),
-        ∂φ the merit's directional derivative along ``d`` (the constraints' part of it is
-        the same for every damping). 0 when the parameters are held anyway (a run solved
-        alone, a mode-sequence trial): every rung would give the same step."""
+    def _damping_reach(self, d, H, Jg, grad, g, free, Jr, dphi) -> tuple[float, float]:
+        """How much the rest of the damping ladder could change a rejected step ``d``:
+        (|m(d∞) − m(d)| / |∂φ|, max|d∞ − d| / max|d|), m the Gauss–Newton model of ½χ²'s
+        change (∇f·x + ½‖Jᵣx‖²), d∞ the step with the parameter block held (the limit of
+        infinite damping: the Levenberg–Marquardt term acts on the parameters alone; the
+        states' part of the step, which the linearised constraints ask for, no damping
+        removes), ∂φ the merit's directional derivative along ``d`` (the constraints'
+        part of it is the same for every damping). The first says what the model would
+        gain, the second how far the trial points would move (a parameter step along a
+        flat direction changes the model little and the function perhaps much). (0, 0)
+        when the parameters are held anyway (a run solved alone, a mode-sequence trial):
+        every rung would give the same step."""
         n_th = self.n_theta
         states = free[free >= n_th]
         if len(states) == len(free):
-            return 0.0
+            return 0.0, 0.0
         try:
             sol = _kkt_solve(H, Jg, grad, g, states)
         except RuntimeError:
-            return np.inf
+            return np.inf, np.inf
         d_inf = np.zeros(self.n_w)
         d_inf[states] = sol[: len(states)]
 
@@ -829,7 +838,9 @@ class Problem:
             jx = Jr @ x
             return float(grad @ x) + 0.5 * float(jx @ jx)
 
-        return abs(model(d_inf) - model(d)) / abs(dphi) if dphi != 0 else np.inf
+        size = float(np.max(np.abs(d)))
+        step = float(np.max(np.abs(d_inf - d))) / size if size > 0 else 0.0
+        return (abs(model(d_inf) - model(d)) / abs(dphi) if dphi != 0 else np.inf), step
 
     def _second_order_correction(self, w, d, g1, H, Jg, grad, free, lbx, ubx, nu, target):
         """(step, (r, g, merit)) of a second-order correction of a full step ``d`` that

@@ -666,13 +666,14 @@ def test_a_solve_whose_line_search_always_fails_does_not_move(small_fit, monkeyp
 def test_the_damping_ladder_ends_when_no_damping_can_move_the_step(small_fit, monkeypatch, off):
     """Every trial point worse; the damping (on the parameters alone) raised tenfold after
     each rejection up to 1e8. Once the rest of the ladder could change what the step
-    promises by less than LADDER_REACH of the merit's slope, the solve ends, judged as at
-    the ladder's end (measured on the 8-run diagnosis baseline: twelve ladders climbed to
-    1e8, none accepted, ~25 s of 63). A plateau 1 nm off: the step is the states' (reach
-    2e-5 measured), one rejection instead of thirteen; with the parameters held (a run
-    solved alone), reach 0, one. μmax off: the step is the parameters', the damping
-    shrinks what it promises rung by rung (reach 0.20 … 0.11, 0.023, 0.0026 measured),
-    ten."""
+    promises by less than LADDER_REACH of the merit's slope and move the trial points by
+    less than LADDER_STEP of the step, the solve ends, judged as at the ladder's end
+    (measured on the 8-run diagnosis baseline: twelve ladders climbed to 1e8, none
+    accepted, ~25 s of 63). A plateau 1 nm off: the model hardly cares for the step's
+    parameter part (reach 2e-5), but it is most of the step until lm = 1 (measured), and
+    the ladder ends there, after five rejections instead of thirteen; with the parameters
+    held (a run solved alone), after one. μmax off: the step is the parameters', the
+    damping shrinks what it promises rung by rung (reach 0.20 … 0.023, 0.0026), ten."""
     import identify.nlp as nlp
 
     prob, w, _ = _off_solution(small_fit)
@@ -689,8 +690,9 @@ def test_the_damping_ladder_ends_when_no_damping_can_move_the_step(small_fit, mo
     monkeypatch.setattr(prob, "_damping_reach", lambda *a: reach.append(true_reach(*a)) or reach[-1])
     res = prob.solve_gn(w, fixed)
     assert np.array_equal(res["w"], w)
-    assert reach[-1] < nlp.LADDER_REACH <= min(reach[:-1], default=1.0), reach
-    assert res["iterations"] == len(reach) == {"plateau": 1, "plateau, parameters held": 1, "mu_max": 10}[off]
+    ends = [m < nlp.LADDER_REACH and s < nlp.LADDER_STEP for m, s in reach]
+    assert ends[-1] and not any(ends[:-1]), reach
+    assert res["iterations"] == len(reach) == {"plateau": 5, "plateau, parameters held": 1, "mu_max": 10}[off], reach
     # the same judgement as the whole ladder's
     monkeypatch.setattr(prob, "ladder_reach", 0.0)
     full = prob.solve_gn(w, fixed)
@@ -699,8 +701,11 @@ def test_the_damping_ladder_ends_when_no_damping_can_move_the_step(small_fit, mo
 
 def test_no_damping_reaches_a_step_whose_parameters_are_held(small_fit):
     """A run solved alone, or a trial, holds the parameters: the damping has nothing to act
-    on (reach 0); with them free, μmax off, the step is the parameters' and the damping
-    could take a fifth of what it promises away (0.20 measured)."""
+    on (reach 0, 0). With them free, μmax off, the step is the parameters' and the damping
+    could take a fifth of what it promises away (0.20 measured); the step at a damping of
+    1e12 is the limit the reach is measured against, and has none left."""
+    import scipy.sparse as sp
+
     import identify.nlp as nlp
 
     prob, w = small_fit.problem, small_fit.w.copy()
@@ -709,16 +714,22 @@ def test_no_damping_reaches_a_step_whose_parameters_are_held(small_fit):
     r, g, Jr, Jg = prob.evaluate(w, jac=True)
     H, grad = (Jr.T @ Jr).tocsc(), Jr.T @ r
     lbx, ubx = prob.bounds()
-    for held in (True, False):
-        free = np.arange(prob.n_theta if held else 0, prob.n_w)
-        free = free[lbx[free] < ubx[free]]
-        sol = nlp._kkt_solve(H, Jg, grad, g, free)
+
+    def reach_of(free, lm=0.0):
+        Hd = H + sp.diags(np.r_[lm * np.maximum(H.diagonal()[: prob.n_theta], 1e-12), np.zeros(prob.n_w - prob.n_theta)])
+        sol = nlp._kkt_solve(Hd.tocsc(), Jg, grad, g, free)
         d = np.zeros(prob.n_w)
         d[free] = sol[: len(free)]
-        nu = 1.1 * np.abs(sol[len(free):]).max()
-        dphi = grad @ d - nu * np.abs(g).sum()
-        reach = prob._damping_reach(d, H, Jg, grad, g, free, Jr, dphi)
-        assert reach == 0.0 if held else 0.1 < reach < 1.0, reach
+        dphi = grad @ d - 1.1 * np.abs(sol[len(free):]).max() * np.abs(g).sum()
+        return prob._damping_reach(d, Hd.tocsc(), Jg, grad, g, free, Jr, dphi)
+
+    held = np.arange(prob.n_theta, prob.n_w)
+    free = np.arange(prob.n_w)
+    assert reach_of(held[lbx[held] < ubx[held]]) == (0.0, 0.0)
+    free = free[lbx[free] < ubx[free]]
+    model, step = reach_of(free)
+    assert 0.1 < model < 1.0 and step > nlp.LADDER_STEP, (model, step)
+    assert max(reach_of(free, lm=1e12)) < 1e-6
 
 
 def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, monkeypatch):
