@@ -93,7 +93,7 @@ STALL_ITERS = 4
 LADDER_REACH = 0.02
 # ... and only when the trial points would move by less than this share of the step: a
 # parameter step along a flat direction changes the model little and the function perhaps
-# much (the baseline's ladders above: 0.026-0.055 on the rungs where they end)
+# much (the baseline's ladders above: 0.022-0.042 on the rungs where they end)
 LADDER_STEP = 0.1
 MAX_SOC = 4  # second-order corrections tried for a rejected full step (Ipopt's max_soc)
 STALL_TOL = 0.01
@@ -262,7 +262,7 @@ class Problem:
     # the solver's tolerances (module constants, above); a candidate refit of the
     # diagnosis overrides them on its instance (identify.candidates)
     stat_tol, feas_tol = STAT_TOL, FEAS_TOL
-    ladder_reach = LADDER_REACH
+    ladder_reach, ladder_step = LADDER_REACH, LADDER_STEP
     stall_tol, stall_feas = STALL_TOL, STALL_FEAS
 
     def __init__(self, runs: Sequence, model: Model, values: dict, opts):
@@ -781,7 +781,7 @@ class Problem:
                 log.debug("GN it %d rejected: phi %.6g dphi %.3g |d| %.3g nu %.3g lm %.1e reach %.2g, %.2g",
                           it, phi0, dphi, np.max(np.abs(d)), nu, lm, reach, moves_step)
                 lm = max(10 * lm, 1e-3)
-                if lm > 1e8 or (reach < self.ladder_reach and moves_step < LADDER_STEP):
+                if lm > 1e8 or (reach < self.ladder_reach and moves_step < self.ladder_step):
                     # no step gains along any damping (or none the rest of the ladder
                     # could give differs enough): judged like a stall, on the undamped
                     # step (a candidate's refit that cannot move further but whose Δnll
