@@ -627,7 +627,10 @@ class Problem:
         self.jacobian_scheme(self.opts.arc_jacobian, SOLVE_REL_STEP)
         if self.opts.solver == "ipopt":
             return self.solve_ipopt(w0, fixed)
-        res = self.solve_gn(w0, fixed)
+        try:
+            res = self.solve_gn(w0, fixed)
+        finally:
+            self.jacobian_scheme(self.opts.arc_jacobian, SOLVE_REL_STEP)  # (solve_gn may switch)
         if res["status"] in ("Stalled", "Line_Search_Failed") and self.opts.arc_jacobian == "forward":
             # forward differences carry O(h) and noise/h errors that central ones halve
             # or cancel: a stall on them, or a line search that found no step along
@@ -649,7 +652,6 @@ class Problem:
             if more["success"] or more["f"] <= res["f"]:
                 res = more
             res["iterations"], res["wall_s"] = its, wall
-        self.jacobian_scheme(self.opts.arc_jacobian, SOLVE_REL_STEP)  # (solve_gn may have switched)
         return res
 
     def solve_ipopt(self, w0, fixed=None) -> dict:
@@ -771,7 +773,9 @@ class Problem:
             # short are the arcs' integration noise, not progress (measured on a stalled
             # 2-run fit: 21 of 38 accepted steps had α < 1e-6, dθ ~1e-9, and with the
             # rejected ones took 97 % of the line-search evaluations)
+            tried = 0
             while a > 1e-10 and (dphi >= 0 or -a * dphi >= stat_tol):
+                tried += 1
                 r1, g1 = self.evaluate(w + a * d)
                 phi1 = 0.5 * r1 @ r1 + nu * np.abs(g1).sum()
                 if np.isfinite(phi1) and phi1 <= phi0 + 1e-4 * a * min(dphi, 0.0):
@@ -784,7 +788,7 @@ class Problem:
                         d, (r1, g1, phi1), accepted = soc[0], soc[1], True
                         break
                 a *= 0.5
-            if not accepted and feas0 < feas_tol and self._cb_jac_forward():
+            if not accepted and tried and feas0 < feas_tol and self._cb_jac_forward():
                 # a step from a feasible point on forward differences that no line search
                 # accepts: their O(h) error is first-order in the step. Measured in the
                 # tail of the 10-run speed benchmark's first solve: the trial points'
@@ -800,8 +804,8 @@ class Problem:
                 self.jacobian_scheme("central", SOLVE_REL_STEP)
                 refreshed = True
                 continue
-            if not accepted and feas0 < self.stall_feas and moves < self.stall_tol:
-                # the whole undamped step promises less than the stall tolerance: no rung
+            if not accepted and lm == 0 and feas0 < self.stall_feas and moves < self.stall_tol:
+                # the whole (undamped) step promises less than the stall tolerance: no rung
                 # of the damping ladder can gain more, and the stall rule would judge the
                 # point reached within tolerance after climbing it (measured: four rungs,
                 # ~20 s, for 1.5e-4 of ½χ² in the first solve above)
