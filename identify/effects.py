@@ -104,6 +104,16 @@ class Effect:
                 out.append({n: float(min(max(null + step, lo), hi)), "_staged": True})
         return out
 
+    def scaled_magnitude(self, scale: float) -> float:
+        """The effect's parameter at ``scale`` times its realistic departure from the null
+        (a detection-limit sweep): a factor whose null is 1 (``step_scale`` 1.05) scales
+        its excess, 1.05 -> 1.015 at 0.3, not to 0.315; a null taken from the baseline
+        (None) counts as 0."""
+        name, value, _ = self.magnitude
+        null = self.null.get(name)
+        null = 0.0 if null is None else float(null)
+        return null + scale * (float(value) - null)
+
     def simulation_values(self, magnitude: float | None = None) -> dict:
         """Parameter values that switch the effect on (for withheld-effect data sets)."""
         name, value, _ = self.magnitude

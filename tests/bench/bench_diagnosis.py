@@ -5,8 +5,8 @@
     python tests/bench/bench_diagnosis.py speed [--workers 2]
 
 ``confusion``: for each effect (and "none", "outside"), simulate the withheld-effect data
-set (:func:`identify.withheld.withheld_dataset`) at the effect's realistic magnitude times
-each scale, fit the baseline without it, diagnose with every candidate, and record what
+set (:func:`identify.withheld.withheld_dataset`) with each scale times the effect's
+realistic departure from its null (:meth:`identify.effects.Effect.scaled_magnitude`), fit the baseline without it, diagnose with every candidate, and record what
 was named, what was reported confounded, the verdict and the held-out gap before/after.
 One JSON line per case is appended as soon as it is done (nothing is lost to a stop);
 the table is printed at the end. The detection limit of an effect is the smallest
@@ -46,7 +46,7 @@ def case(eid, scale, quick, workers, seed=0):
     if eid not in (None, "outside"):
         eff = get_effect(eid)
         if eff.nested and eff.magnitude:
-            mag = eff.magnitude[1] * scale
+            mag = eff.scaled_magnitude(scale)
     conds = QUICK_CONDITIONS if quick else CONDITIONS
     base = {"A": 0.015}
     traces = withheld_dataset(eid, mag, seed=seed, conditions=conds, base=base)

@@ -74,6 +74,17 @@ def _problem(trace, free, values=None):
     return Problem([rd], Model(), vals, opts).build(), rd
 
 
+def test_a_detection_sweep_scales_the_departure_from_the_null():
+    """Measured: the benchmark's step-size set at 0.3× was made with a step of 0.315 of the
+    nominal (1.05 × 0.3), where no run stick-slips, instead of 1.015."""
+    assert get_effect("step_size").scaled_magnitude(0.3) == pytest.approx(1.015)
+    assert get_effect("load_scale").scaled_magnitude(0.1) == pytest.approx(1.015)
+    assert get_effect("load_offset").scaled_magnitude(0.3) == pytest.approx(0.6e-6)
+    for eid, eff in EFFECTS.items():
+        if eff.nested and eff.magnitude:
+            assert eff.scaled_magnitude(1.0) == pytest.approx(eff.magnitude[1]), eid
+
+
 def test_drift_term_explains_a_drifting_camera():
     base = dict(identify.parameter_set("FOTAS"), v_stick=1e-5)
     run = identify.simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=5, step_frequency_Hz=100,
