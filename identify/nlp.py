@@ -637,9 +637,10 @@ class Problem:
             # them (a Jacobian row wrong to first order: measured, the step's actual
             # slip-length change missed the predicted one by 6.5e-6 µm at α = 0.01 and
             # 7e-4 at α = 1 on a creeping arc), gets one more solve on the accurate Jacobian
-            # (in the one line-search failure measured, that solve ended there too), also
-            # after a solve that switched to them itself: a fresh start of the damping and
-            # the merit's weight
+            # (in the one line-search failure measured, that solve ended there too); kept
+            # also after a solve that switched to them itself, as calibrated at 208716e
+            # (whether it gains anything there, where the damping and the merit's weight
+            # start afresh, was not measured; with the parameters held it repeats work)
             self.jacobian_scheme("central", SOLVE_REL_STEP)
             try:
                 more = self.solve_gn(res["w"], fixed)
@@ -687,9 +688,10 @@ class Problem:
         :meth:`_damping_reach`), is judged the same way on its undamped step
         (``Stalled_Within_Tolerance``, else ``Line_Search_Failed``). A rejected step
         whose undamped Gauss–Newton step promises less than ``STALL_TOL`` at a point
-        feasible to ``STALL_FEAS`` is judged so at once. A step on forward-difference
-        arcs that the line search rejects is first computed again on central ones at the
-        same point, which the rest of the solve keeps (the result's ``central``).
+        feasible to ``STALL_FEAS`` is judged so at once. A step from a point feasible to
+        ``feas_tol`` on forward-difference arcs that the line search rejects is first
+        computed again on central ones at the same point, which the rest of the solve
+        keeps (the result's ``central``).
         """
         opts = self.opts
         t0 = time.perf_counter()
@@ -804,17 +806,17 @@ class Problem:
                 self.jacobian_scheme("central", SOLVE_REL_STEP)
                 refreshed = True
                 continue
-            if not accepted and lm == 0 and feas0 < self.stall_feas and moves < self.stall_tol:
-                # the whole (undamped) step promises less than the stall tolerance: no rung
-                # of the damping ladder can gain more, and the stall rule would judge the
-                # point reached within tolerance after climbing it (measured: four rungs,
-                # ~20 s, for 1.5e-4 of ½χ² in the first solve above)
-                judged = self._stalled_undamped(it, r0, Jr, Jg, grad, g, free, "Line_Search_Failed")
-                if judged[1]:
-                    status, success = judged
-                    log.debug("GN it %d rejected within the stall tolerance: %s", it, status)
-                    break
             if not accepted:
+                if lm == 0 and feas0 < self.stall_feas and moves < self.stall_tol:
+                    # the whole (undamped) step promises less than the stall tolerance: no rung
+                    # of the damping ladder can gain more, and the stall rule would judge the
+                    # point reached within tolerance after climbing it (measured: four rungs,
+                    # ~20 s, for 1.5e-4 of ½χ² in the first solve above)
+                    judged = self._stalled_undamped(it, r0, Jr, Jg, grad, g, free, "Line_Search_Failed")
+                    if judged[1]:
+                        status, success = judged
+                        log.debug("GN it %d rejected within the stall tolerance: %s", it, status)
+                        break
                 reach, moves_step = self._damping_reach(d_gn, H, Jg, grad, g, free, Jr, dphi)
                 log.debug("GN it %d rejected: phi %.6g dphi %.3g |d| %.3g nu %.3g lm %.1e reach %.2g, %.2g",
                           it, phi0, dphi, np.max(np.abs(d)), nu, lm, reach, moves_step)

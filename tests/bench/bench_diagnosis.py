@@ -6,8 +6,8 @@
 
 ``confusion``: for each effect (and "none", "outside"), simulate the withheld-effect data
 set (:func:`identify.withheld.withheld_dataset`) with each scale times the effect's
-realistic departure from its null (:meth:`identify.effects.Effect.scaled_magnitude`), fit the baseline without it, diagnose with every candidate, and record what
-was named, what was reported confounded, the verdict and the held-out gap before/after.
+realistic departure from its null (:meth:`identify.effects.Effect.scaled_magnitude`),
+fit the baseline without it, diagnose with every candidate, and record what was named, what was reported confounded, the verdict and the held-out gap before/after.
 One JSON line per case is appended as soon as it is done (nothing is lost to a stop);
 the table is printed at the end. The detection limit of an effect is the smallest
 magnitude at which it is still named (or reported confounded).
