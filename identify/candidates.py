@@ -154,10 +154,11 @@ def run_candidate(task: CandidateTask) -> dict:
     try:
         prob = _problem(task, free)
         prob.give_up = _give_up(task, prob)
-        inits = []  # (w0, staged)
+        inits = []  # (w0, staged, basin)
         for start in (task.starts or [{}]):
             start = dict(start)
             nudged = bool(start.pop("_staged", False))
+            basin = start.pop("_basin", 0)
             staged = nudged or task.staged
             vals = {**task.values, **start}
             th_vals = {n: vals[n] for n in free}
@@ -166,30 +167,30 @@ def run_candidate(task: CandidateTask) -> dict:
                 # on its bound): from the staged start of a fit, and for a law also from
                 # the current values (the same friction numbers under the other curve)
                 if not nudged:
-                    inits.append((prob.initial_w(th_vals), True))
+                    inits.append((prob.initial_w(th_vals), True, basin))
                 try:
                     from .start import staged_start
 
-                    inits.append((prob.initial_w(staged_start(prob, th_vals)[0]), True))
+                    inits.append((prob.initial_w(staged_start(prob, th_vals)[0]), True, basin))
                 except Exception:  # the staged start is a convenience
                     pass
             else:
                 th = prob.theta.to_scaled(th_vals)
-                inits.append((np.r_[np.clip(th, prob.theta.lo + 1e-9, prob.theta.hi - 1e-9), task.w_tail], False))
+                inits.append((np.r_[np.clip(th, prob.theta.lo + 1e-9, prob.theta.hi - 1e-9), task.w_tail], False,
+                              basin))
         scored = []
-        for w0, staged in inits:
+        for w0, staged, basin in inits:
             if prob.E:
                 prob.size_arcs(w0)
             f0 = 0.5 * float(np.sum(prob.residuals(w0) ** 2))
             if np.isfinite(f0):
-                scored.append((w0, staged, f0))
+                scored.append((w0, (staged, basin), f0))
         # solve from the best warm start (they differ only in the candidate's own
-        # parameters) and the best far one
+        # parameters) and the best far one, of each basin: a start's χ² says which sign
+        # or nudge is downhill, not which of several ripples the refit ends in
         todo = []
-        for kind in (False, True):
-            group = [x for x in scored if x[1] is kind]
-            if group:
-                todo.append(min(group, key=lambda x: x[2]))
+        for kind in dict.fromkeys(x[1] for x in scored):
+            todo.append(min((x for x in scored if x[1] == kind), key=lambda x: x[2]))
         best = None
         for w0, _, f0 in todo:
             sol = _solve_on(prob, w0, f0)

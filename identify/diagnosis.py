@@ -519,14 +519,19 @@ def _tasks(ids, current, runs, fopts, folds, opts, threads, where_hint):
 
 def _starts(eff, nulls, where_hint) -> list:
     """Warm starts of a candidate's own parameters: the null, nudged off it where the
-    Jacobian vanishes there, and for the topography the ripple the residuals show."""
+    Jacobian vanishes there, and for the topography the ripples the residuals show, each
+    leading peak of their periodogram a basin of its own (``_basin``: the refit solves
+    the best start of each basin and keeps the best end; :data:`identify.where.RIPPLE_PEAK_SHARE`)."""
     if eff.id == "topography":
         pos = next((m for m in where_hint if m.feature == "position"), None)
-        lam = pos.extra.get("wavelength_m", 5e-6) if pos else 5e-6
-        amp = pos.extra.get("amplitude", 0.01) if pos else 0.01
-        ph = pos.extra.get("phase", 0.0) if pos else 0.0
-        # the residual ripple is a·sin(θ) + b·cos(θ) = amp·sin(θ + ph); the model's is the capacity
-        return [dict(topo_amp=s * max(amp, 1e-3), topo_phase=ph, topo_wavelength=lam) for s in (1.0, -1.0)]
+        extra = pos.extra if pos else {}
+        peaks = extra.get("peaks") or [dict(wavelength_m=extra.get("wavelength_m", 5e-6),
+                                            amplitude=extra.get("amplitude", 0.01), phase=extra.get("phase", 0.0))]
+        # the residual ripple is a·sin(θ) + b·cos(θ) = amp·sin(θ + ph); the model's is the
+        # capacity, whose sign the starts' own χ² decides
+        return [dict(topo_amp=s * max(pk["amplitude"], 1e-3), topo_phase=pk["phase"],
+                     topo_wavelength=pk["wavelength_m"], _basin=b)
+                for b, pk in enumerate(peaks) for s in (1.0, -1.0)]
     if eff.id == "motion_blur":
         return [dict(exposure=1e-4), dict(exposure=2e-3)]  # no slope at T = 0
     if eff.id == "stick_threshold" and nulls.get("v_stick", 0.0) == 0.0:

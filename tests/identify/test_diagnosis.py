@@ -441,6 +441,59 @@ def test_an_unconfirmed_held_out_gap_of_a_candidate_no_test_could_name_is_not_re
     assert asked[-1] is True and np.isfinite(out["heldout"]["gap_um"])
 
 
+def test_ripple_peaks_keep_the_leading_local_maxima():
+    from identify.where import RIPPLE_MAX_PEAKS, ripple_peaks
+
+    d2 = np.array([0.0, 5.0, 1.0, 9.0, 2.0, 2.0, 3.0, 0.5, 4.0, np.nan, 1.0])
+    # local maxima 9 (3), 5 (1), 4 (8), 3 (6); a third of the highest is 3
+    assert ripple_peaks(d2) == [3, 1, 8, 6]
+    assert ripple_peaks(np.full(4, np.nan)) == [] and ripple_peaks(np.array([])) == []
+    comb = np.tile([0.0, 1.0], 20)  # twenty equal peaks
+    assert len(ripple_peaks(comb)) == RIPPLE_MAX_PEAKS
+
+
+def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, monkeypatch):
+    """Each periodogram peak is a basin of its own: the refit solves each and keeps the best
+    end (on the benchmark's topography set the highest peak led to a wrong wavelength and
+    the seventh to the true one, identify.where.RIPPLE_PEAK_SHARE)."""
+    import identify.candidates as cand
+    from identify.diagnosis import _starts, _tasks
+    from identify.effects import get_effect
+    from identify.where import Misfit
+
+    peaks = [dict(wavelength_m=1.1e-6, amplitude=0.01, phase=2.9, delta_chi2=900.0),
+             dict(wavelength_m=3.7e-6, amplitude=0.008, phase=-1.1, delta_chi2=480.0)]
+    hint = [Misfit("position", 6.0, 1e-9, 40.0, "ripple", extra=dict(wavelength_m=1.1e-6, amplitude=0.01,
+                                                                      phase=2.9, peaks=peaks))]
+    eff = get_effect("topography")
+    starts = _starts(eff, {}, hint)  # (the topography starts do not use the nulls)
+    assert [(s["_basin"], s["topo_wavelength"], np.sign(s["topo_amp"])) for s in starts] == [
+        (0, 1.1e-6, 1), (0, 1.1e-6, -1), (1, 3.7e-6, 1), (1, 3.7e-6, -1)]
+    # an older hint without peaks still gives the one ripple
+    old = [Misfit("position", 6.0, 1e-9, 40.0, "ripple", extra=dict(wavelength_m=2e-6, amplitude=0.01, phase=0.0))]
+    assert {s["topo_wavelength"] for s in _starts(eff, {}, old)} == {2e-6}
+
+    prob, w = small_fit.problem, small_fit.w
+    r = prob.residuals(w)
+    current = dict(values={**prob.values, **small_fit.values}, free=tuple(prob.theta.names), law=prob.law.name,
+                   w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta,
+                   chi2=float(r @ r) + prob.chi2_constant(), n_eff=prob.n_effective())
+    tasks, _ = _tasks(["topography"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, where_hint=hint)
+    solved, ends = [], []
+    real = cand._solve_on
+
+    def spy(p, w0, f0):
+        solved.append(float(w0[list(p.theta.names).index("topo_wavelength")]))
+        out = real(p, w0, f0)
+        ends.append(out["f"])
+        return out
+
+    monkeypatch.setattr(cand, "_solve_on", spy)
+    out = cand.run_candidate(tasks[1])
+    assert out["ok"] and len(solved) == 2 and solved[0] != solved[1]  # one start per basin
+    assert 0.5 * (out["chi2"] - prob.chi2_constant()) == pytest.approx(min(ends), rel=1e-9)
+
+
 def test_the_likelihood_test_is_wired_into_naming_and_says_what_failed():
     from identify.diagnosis import _closes, _try
 
@@ -722,3 +775,4 @@ def test_a_weaker_candidate_is_not_named_while_a_better_one_could_not_be_judged(
     beta = cand("spring_nonlinearity", -1700.6, "Maximum_Iterations_Exceeded", False)
     off = cand("load_offset", -500.0, "Solve_Succeeded", True)
     assert _select([beta, off], {})[0] is off
+
