@@ -776,3 +776,58 @@ def test_a_weaker_candidate_is_not_named_while_a_better_one_could_not_be_judged(
     off = cand("load_offset", -500.0, "Solve_Succeeded", True)
     assert _select([beta, off], {})[0] is off
 
+
+def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_the_model_mimics(monkeypatch):
+    """Measured (velocity strengthening at 0.1× withheld, 8c17533): A was significant
+    (ΔAIC −32.7) but confounded with μmax, μmin, τ, and a load offset the data do not have
+    (ΔAIC −27.1, residual changes at cosine 0.57 to A's) was named. Now the load offset is
+    refitted with A free too, and named only if it still gains significantly."""
+    import identify.diagnosis as dg
+
+    def cand(effect, daic, confounded):
+        return dict(effect=effect, ok=True, significant=True, confounded_with=confounded, delta_aic=daic,
+                    p_value=1e-8, status="Solve_Succeeded", closes=True, estimate_text=effect, chi2=1000.0 + daic,
+                    r2_with_model=1.0 if confounded else 0.2,
+                    n_eff=5 if confounded else 4, free=["mu_max", "mu_min", "tau"] + (["A"] if confounded else []),
+                    values={"mu_max": 0.8, "mu_min": 0.5, "tau": 0.07, "A": 0.0017, "load_offset": 0.0},
+                    law="exponential", w=np.zeros(8), ev_M=np.zeros(2))
+
+    seen = []
+
+    def refit(gain):
+        def run(task):
+            seen.append(task)
+            return dict(ok=True, status="Solve_Succeeded", chi2=task.null_chi2 - 2 * gain, n_eff=task.null_n_eff + 1)
+        return run
+
+    class Now:  # an executor that runs the task at once
+        def submit(self, fn, task):
+            from concurrent.futures import Future
+            f = Future()
+            f.set_result(fn(task))
+            return f
+
+    def check(gain):
+        vs = cand("velocity_strengthening", -32.7, ["mu_max", "mu_min", "tau"])
+        off = cand("load_offset", -27.1, [])
+        monkeypatch.setattr(dg, "run_candidate", refit(gain))
+        group = dg._beside(off, [vs, off], dict(n_obs=5000), {}, [], identify.FitOptions(), DiagnosisOptions(),
+                           1, Now(), [], 14, lambda m: None)
+        return group, off, vs
+
+    group, off, vs = check(gain=1.0)  # beside A, the offset gains one likelihood unit
+    task = seen[-1]
+    assert task.effect == "load_offset" and "A" in task.free and task.extra == ("load_offset",)
+    assert task.null_chi2 == vs["chi2"] and task.folds == []
+    assert group["effects"] == ["velocity_strengthening", "load_offset"] and off["confounded_with"] == [
+        "velocity_strengthening"]
+    assert "not beside velocity_strengthening" in off["note"] and off["beside"][0]["significant"] is False
+    assert dg._select([vs, off], {}) == (None, None)  # and the selection names nothing
+    assert "not beside velocity_strengthening" in off["note"] and "mimic it" in vs["note"]
+    group, off, _ = check(gain=40.0)  # something of its own beyond A: nameable
+    assert group is None and off["confounded_with"] == [] and off["beside"][0]["significant"] is True
+    # a rival that fits worse is no reason to refit
+    vs, off = cand("velocity_strengthening", -20.0, ["mu_max"]), cand("load_offset", -27.1, [])
+    n = len(seen)
+    assert dg._beside(off, [vs, off], dict(n_obs=5000), {}, [], identify.FitOptions(), DiagnosisOptions(), 1, Now(),
+                      [], 14, lambda m: None) is None and len(seen) == n
