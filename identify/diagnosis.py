@@ -390,21 +390,18 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
                             fold_names=[[runs[i].name for i in f] for f in folds])
             rnd = [base] + sorted(scored, key=_rank) + skipped
             rounds.append(rnd)
-            chosen, group = _select(scored, base)
-            if group:
-                confounded.append(group)
-            while chosen is not None:
-                # a candidate that explains nothing beyond a better-fitting one the model's own
-                # parameters mimic is not named (:func:`_beside`); the next one is tried
-                group = _beside(chosen, scored, base, current, runs, fopts, opts, threads, own, where0,
-                                len([t for t in tasks if t.effect]), say)
-                if group is None:
-                    break
-                confounded.append(group)
-                n_refits += 1
-                chosen, group = _select(scored, base)
-                if group:
-                    confounded.append(group)
+            n_cand = len([t for t in tasks if t.effect])
+            checks = []
+
+            def check(c):
+                before = len(c.get("beside", []))
+                g = _beside(c, scored, base, current, runs, fopts, opts, threads, own, where0, n_cand, say)
+                checks.append(len(c.get("beside", [])) - before)
+                return g
+
+            chosen, groups = _choose(scored, base, check)
+            confounded.extend(groups)
+            n_refits += sum(checks)
             if chosen is None or len(effects) >= opts.max_effects:
                 break  # (a round of the final model alone also ends here: it has no candidates)
             chosen["named"] = True
@@ -611,8 +608,10 @@ def _score(results, base, opts, n_cand, fold_names=None) -> list:
         if np.isfinite(r2) and r2 > CONFOUNDED_R2 and not z >= WALD_Z:
             # no partner listed: no information on it at all, so every model parameter is one
             c["confounded_with"] = partners or [n for n in base.get("free", []) if n not in eff.parameters]
+            c["mimicked"] = True  # by the model's own parameters (not a tie with another candidate)
         else:
             c["confounded_with"] = []
+            c["mimicked"] = False
         if dnll < -1e-6 * max(base["chi2"], 1.0):
             c["significant"] = False
             c["heldout_gap_after_um"] = c["gap_after_um"] = float("nan")
@@ -832,11 +831,29 @@ def _select(scored, base):
     return None, None
 
 
+def _choose(scored, base, check):
+    """:func:`_select`, then ``check`` (:func:`_beside`) on its choice: a choice the check
+    demotes (it returns the confounded group) gives way to the next :func:`_select` picks.
+    The chosen candidate (or None) and every confounded group found on the way."""
+    groups = []
+    chosen, group = _select(scored, base)
+    while True:
+        if group:
+            groups.append(group)
+        if chosen is None:
+            return None, groups
+        group = check(chosen)
+        if group is None:
+            return chosen, groups
+        groups.append(group)
+        chosen, group = _select(scored, base)
+
+
 def _rivals(chosen, scored) -> list:
     """Significant candidates that fit better than ``chosen`` but cannot be named because
     the model's own parameters mimic them (nested ones: the test below needs a p-value)."""
     out = [c for c in scored if c is not chosen and c.get("ok") and c.get("significant")
-           and c.get("confounded_with") and c.get("p_value") is not None
+           and c.get("mimicked") and c.get("p_value") is not None
            and c["delta_aic"] < chosen["delta_aic"]]
     return sorted(out, key=lambda c: c["delta_aic"])[:MAX_RIVALS]
 
@@ -854,15 +871,21 @@ def _beside(chosen, scored, base, current, runs, fopts, opts, threads, executor,
     significant (ΔAIC −32.7) but confounded with μmax, μmin, τ, and a load offset of
     −40 ± 12 nN (ΔAIC −27.1; the data have none) was named; their residual changes were
     not parallel (cosine 0.57), so the tie rule of :func:`_try` did not apply."""
+    eff = get_effect(chosen["effect"])
+    if not eff.nested:
+        return None  # another aging law is judged by ΔAIC against the current law, not nested
+    own = {n: chosen["values"][n] for n in eff.parameters if n in chosen.get("values", {})}
     for rival in _rivals(chosen, scored):
-        eff, reff = get_effect(chosen["effect"]), get_effect(rival["effect"])
+        reff = get_effect(rival["effect"])
         nulls = eff.null_values(rival["values"])
         free = tuple(rival["free"])
+        # from its own estimates, the null or its nudges, whichever fits best at the start
+        starts = [dict(own)] + [s for s in _starts(eff, nulls, where_hint) if not s.get("_basin")]
         task = CandidateTask(
             effect=chosen["effect"], runs=runs, law=rival["law"], values={**rival["values"], **nulls}, free=free,
             extra=tuple(n for n in eff.parameters if n not in free),
             bounds={**current.get("bounds", {}), **dict(reff.bounds), **dict(eff.bounds)},
-            starts=_starts(eff, nulls, where_hint), nulls=nulls, w_tail=np.asarray(rival["w"])[len(free):],
+            starts=starts, nulls=nulls, w_tail=np.asarray(rival["w"])[len(free):],
             ev_M=rival["ev_M"], options=fopts, folds=[], max_iter=opts.max_iter, threads=threads,
             null_chi2=rival["chi2"], null_n_eff=rival["n_eff"], screen_p=opts.alpha)
         say(f"  {chosen['effect']} refitted beside {rival['effect']} (which fits better but the model mimics)")
@@ -879,10 +902,14 @@ def _beside(chosen, scored, base, current, runs, fopts, opts, threads, executor,
             check.update(delta_nll=float(dnll), p_value=p,
                          significant=bool(p < opts.alpha / max(n_cand, 1) and dbic < 0))
         chosen.setdefault("beside", []).append(check)
-        if check.get("significant"):
+        if "p_value" not in check:
+            # no evidence either way: the candidate keeps the name its own tests give it
+            chosen["note"] = (chosen.get("note", "")
+                              + f" (not checked beside {rival['effect']}: the refit failed, {check['status']})")
             continue
-        why = (f"p = {check['p_value']:.2g} (Δnll {check['delta_nll']:.1f}) with both freed" if "p_value" in check
-               else f"the refit with both freed failed ({check['status']})")
+        if check["significant"]:
+            continue
+        why = f"p = {check['p_value']:.2g}, Δnll {check['delta_nll']:.1f}, with both freed"
         chosen["confounded_with"] = [rival["effect"]]
         chosen["confounded_beside"] = rival["effect"]  # (not the model's parameters: _select's note)
         chosen["note"] = (f"significant alone, but not beside {rival['effect']}, which fits better and the model's "

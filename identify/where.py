@@ -150,9 +150,11 @@ def ripple_peaks(d2: np.ndarray) -> list:
     v = np.where(np.isfinite(d2), d2, -np.inf)
     left = np.r_[-np.inf, v[:-1]]
     right = np.r_[v[1:], -np.inf]
-    loc = np.flatnonzero((v >= left) & (v >= right) & np.isfinite(v))
+    loc = np.flatnonzero((v > left) & (v >= right) & np.isfinite(v))  # (a flat top counts once)
     loc = loc[np.argsort(-v[loc], kind="stable")]
     top = v[loc[0]]
+    if not top > 0:
+        return []
     return [int(j) for j in loc if v[j] >= RIPPLE_PEAK_SHARE * top][:RIPPLE_MAX_PEAKS]
 
 
@@ -251,8 +253,8 @@ def where(prob, w: np.ndarray, r: np.ndarray | None = None) -> list:
             d2, amp, ph = position_ripple(x_prev, dmu, wt, rip_run, lams)
             # clusters (phase-locked slips) inflate the weights: scale by the residual dispersion
             disp = max(float(np.sum(wt * (dmu - _run_means(dmu, wt, rip_run)) ** 2)) / max(len(dmu) - len(np.unique(rip_run)), 1), 1.0)
-            i = int(np.argmax(d2))
             peaks = ripple_peaks(d2)
+            i = peaks[0] if peaks else int(np.argmax(np.nan_to_num(d2, nan=-np.inf)))
             n_ind = max(int(span / lo), 1)
             q = d2[i] / disp
             p = float(min(1.0, n_ind * math.exp(-q / 2)))

@@ -450,6 +450,8 @@ def test_ripple_peaks_keep_the_leading_local_maxima():
     assert ripple_peaks(np.full(4, np.nan)) == [] and ripple_peaks(np.array([])) == []
     comb = np.tile([0.0, 1.0], 20)  # twenty equal peaks
     assert len(ripple_peaks(comb)) == RIPPLE_MAX_PEAKS
+    assert ripple_peaks(np.array([1.0, 5.0, 5.0, 1.0])) == [1]  # a flat top is one peak
+    assert ripple_peaks(np.zeros(10)) == []  # nothing to start from
 
 
 def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, monkeypatch):
@@ -787,7 +789,7 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
     def cand(effect, daic, confounded):
         return dict(effect=effect, ok=True, significant=True, confounded_with=confounded, delta_aic=daic,
                     p_value=1e-8, status="Solve_Succeeded", closes=True, estimate_text=effect, chi2=1000.0 + daic,
-                    r2_with_model=1.0 if confounded else 0.2,
+                    r2_with_model=1.0 if confounded else 0.2, mimicked=bool(confounded),
                     n_eff=5 if confounded else 4, free=["mu_max", "mu_min", "tau"] + (["A"] if confounded else []),
                     values={"mu_max": 0.8, "mu_min": 0.5, "tau": 0.07, "A": 0.0017, "load_offset": 0.0},
                     law="exponential", w=np.zeros(8), ev_M=np.zeros(2))
@@ -797,6 +799,8 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
     def refit(gain):
         def run(task):
             seen.append(task)
+            if gain is None:
+                return dict(ok=False, status="failed: no finite start")
             return dict(ok=True, status="Solve_Succeeded", chi2=task.null_chi2 - 2 * gain, n_eff=task.null_n_eff + 1)
         return run
 
@@ -819,6 +823,7 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
     task = seen[-1]
     assert task.effect == "load_offset" and "A" in task.free and task.extra == ("load_offset",)
     assert task.null_chi2 == vs["chi2"] and task.folds == []
+    assert {"load_offset": 0.0} in task.starts  # (its own estimate in the test's values)
     assert group["effects"] == ["velocity_strengthening", "load_offset"] and off["confounded_with"] == [
         "velocity_strengthening"]
     assert "not beside velocity_strengthening" in off["note"] and off["beside"][0]["significant"] is False
@@ -826,8 +831,50 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
     assert "not beside velocity_strengthening" in off["note"] and "mimic it" in vs["note"]
     group, off, _ = check(gain=40.0)  # something of its own beyond A: nameable
     assert group is None and off["confounded_with"] == [] and off["beside"][0]["significant"] is True
+    group, off, _ = check(gain=None)  # the check failed: no evidence, the name stands
+    assert group is None and off["confounded_with"] == [] and "not checked beside" in off["note"]
+
+    def beside(c, scored):
+        return dg._beside(c, scored, dict(n_obs=5000), {}, [], identify.FitOptions(), DiagnosisOptions(), 1, Now(),
+                          [], 14, lambda m: None)
+
+    n = len(seen)
     # a rival that fits worse is no reason to refit
     vs, off = cand("velocity_strengthening", -20.0, ["mu_max"]), cand("load_offset", -27.1, [])
-    n = len(seen)
-    assert dg._beside(off, [vs, off], dict(n_obs=5000), {}, [], identify.FitOptions(), DiagnosisOptions(), 1, Now(),
-                      [], 14, lambda m: None) is None and len(seen) == n
+    assert beside(off, [vs, off]) is None and len(seen) == n
+    # nor is another aging law (judged by ΔAIC, not nested), when it is the one chosen
+    vs, law = cand("velocity_strengthening", -40.0, ["mu_max"]), cand("aging_logistic", -27.1, [])
+    assert beside(law, [vs, law]) is None and len(seen) == n
+    # a candidate demoted beside another (or tied with one) is no rival: the model does not mimic it
+    vs, off, drift = (cand("velocity_strengthening", -40.0, ["mu_max"]), cand("load_offset", -30.0, []),
+                      cand("drift", -27.1, []))
+    monkeypatch.setattr(dg, "run_candidate", refit(1.0))
+    assert beside(off, [vs, off, drift])["effects"] == ["velocity_strengthening", "load_offset"]
+    assert off["mimicked"] is False and dg._rivals(drift, [vs, off, drift]) == [vs]
+
+
+def test_a_choice_demoted_beside_a_rival_gives_way_to_the_next():
+    from identify.diagnosis import _choose
+
+    def cand(effect, daic):
+        return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
+                    status="Solve_Succeeded", closes=True, closed_fraction=0.9, explained_share=1.0,
+                    heldout_delta_nll=10.0, delta_nll=10.0, estimate_text=effect, dr=np.eye(3)[len(effect) % 3],
+                    at_floor=True, heldout_gap_ratio_before=1.2)
+
+    off, drift = cand("load_offset", -30.0), cand("drift", -20.0)
+    asked = []
+
+    def check(c):
+        asked.append(c["effect"])
+        if c is off:  # demoted
+            c["confounded_with"], c["confounded_beside"] = ["velocity_strengthening"], "velocity_strengthening"
+            return dict(effects=["velocity_strengthening", "load_offset"], why="w", closes=True)
+        return None
+
+    chosen, groups = _choose([off, drift], {}, check)
+    assert chosen is drift and asked == ["load_offset", "drift"]
+    assert [g["effects"] for g in groups] == [["velocity_strengthening", "load_offset"]]
+    off, drift = cand("load_offset", -30.0), cand("drift", -20.0)
+    assert _choose([off, drift], {}, lambda c: None) == (off, [])
+    assert _choose([], {}, check) == (None, [])
