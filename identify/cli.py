@@ -328,6 +328,9 @@ def _add_diagnose(sub):
     p.add_argument("--folds", default="loo", metavar="loo|K", help="held-out runs: leave-one-run-out or K folds")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise level of the tests (default 0.01)")
     p.add_argument("--max-effects", type=int, default=3, help="forward selection stops after this many")
+    p.add_argument("--resequence", choices=("auto", "always", "never"), default="auto",
+                   help="decide the mode sequence again once an effect is named: while the named model's "
+                   "held-out gap is above the tolerance (auto, default), always, or never")
     p.add_argument("--workers", type=int, default=2, help="local worker processes for the refits (default 2)")
     p.add_argument("--dask", default=None, metavar="ADDRESS", help="run the refits on a dask.distributed cluster")
     p.set_defaults(func=_cmd_diagnose)
@@ -349,7 +352,8 @@ def _cmd_diagnose(args) -> int:
             raise CLIError(f"--effects {e!r}: unknown effect; choose from {', '.join(EFFECTS)}")
     folds = args.folds if args.folds == "loo" else _int_arg(args.folds, "--folds")
     dopts = DiagnosisOptions(effects=effects, folds=folds, alpha=args.alpha, max_effects=args.max_effects,
-                             workers=args.workers, dask=args.dask, seed=args.seed or 0)
+                             workers=args.workers, dask=args.dask, seed=args.seed or 0,
+                             resequence={"auto": "auto", "always": True, "never": False}[args.resequence])
     say = lambda msg: print(f"[diagnose] {msg}", file=sys.stderr, flush=True)  # noqa: E731
     res = diagnose(args.data, coating=args.coating, fit_options=_fit_options(args), options=dopts, progress=say)
     print(f"wrote {res.save_json(args.json)}", file=sys.stderr)

@@ -292,6 +292,8 @@ def test_options_and_cli_bad_input(capsys, tmp_path):
         DiagnosisOptions(effects=("nope",))
     with pytest.raises(ValueError, match="alpha"):
         DiagnosisOptions(alpha=2)
+    with pytest.raises(ValueError, match="resequence = 'sometimes'"):
+        DiagnosisOptions(resequence="sometimes")
     out = tmp_path / "d.json"
     assert main(["diagnose", str(SMALL[0]), "--effects", "drift,bogus", "--json", str(out)]) == 2
     err = capsys.readouterr().err
@@ -679,6 +681,25 @@ def test_a_named_effect_ends_the_diagnosis_without_measuring_it_twice(offset_bas
     assert res.final["heldout_gap_um"] == c["heldout_gap_after_um"] < c["heldout_gap_before_um"]
     assert res.final["values"]["load_offset"] == pytest.approx(c["estimates"]["load_offset"]["value"])
     assert "round 2" in res.report()
+
+
+def test_auto_resequencing_only_while_the_named_model_misfits(offset_baseline):
+    """The default decides the sequence again only while the named model's held-out gap is
+    above the tolerance (measured: the topography set went from 1.51× the noise and
+    `unexplained` to 1.08× and `adequate`); a model at the noise keeps its sequence."""
+    from identify.diagnosis import _at_noise
+
+    opts = DiagnosisOptions()
+    assert _at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.029)), opts)
+    assert not _at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.031)), opts)
+    assert not _at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=float("nan"))), opts)
+    # named there with its held-out gap at 1.68× the noise (four short runs)
+    for tol, again in ((2.0, False), (1.5, True)):
+        said = []
+        res = diagnose(None, baseline=offset_baseline,
+                       options=DiagnosisOptions(effects=("load_offset",), gap_tolerance=tol), progress=said.append)
+        assert res.effects == ["load_offset"]
+        assert any("deciding the mode sequence again" in m for m in said) is again, (tol, said)
 
 
 def test_a_candidate_that_predicts_the_held_out_runs_worse_in_all_is_not_named():
