@@ -108,6 +108,11 @@ def speed(args):
     print(f"baseline fit {t_fit:.1f} s; diagnosis (all {len(EFFECTS)} candidates, leave-one-run-out, "
           f"{args.workers} workers) {t_diag:.1f} s = {t_diag / t_fit:.1f}× the fit; target 120 s "
           f"({'met' if t_fit + t_diag < 120 else 'missed'}: {t_fit + t_diag:.0f} s in all); verdict {res.verdict}")
+    # where the diagnosis's time goes: each refit's wall time in its worker (they overlap)
+    walls = sorted(((c.get("wall_s") or 0.0, c["effect"], c.get("status"), c.get("iterations"))
+                    for r in res.rounds for c in r if c.get("effect")), reverse=True)
+    print(f"{res.timing['refits']} refits; the longest: " + ", ".join(
+        f"{e} {w:.1f} s ({st}, {it} its)" for w, e, st, it in walls[:6]))
 
 
 def main(argv=None):
