@@ -61,6 +61,7 @@ def case(eid, scale, quick, workers, seed=0):
                 truth_rounds=truth.get("rounds"),
                 heldout_before_um=truth.get("heldout_gap_before_um"), heldout_after_um=truth.get("heldout_gap_after_um"),
                 final_heldout_um=res.final["heldout_gap_um"], final_gap_um=res.final["gap_um"],
+                final_values=res.final["values"],
                 noise_um=res.final["noise_um"], notes=res.notes,
                 significant=[(c["effect"], c.get("p_value"), round(c.get("closed_fraction") or 0, 2), c.get("note"))
                              for c in res.candidates if c.get("significant")],

@@ -54,7 +54,8 @@ DAMPING_ABSORBED = pytest.mark.xfail(strict=True, reason=(
 @pytest.mark.parametrize("eid", ["drift",  # named with the 300 Hz run at 100 Hz (withheld.CONDITIONS)
                                  "step_size",
                                  pytest.param("damping", marks=DAMPING_ABSORBED), "load_offset",
-                                 "spring_nonlinearity"])
+                                 "spring_nonlinearity",
+                                 "topography"])  # its refit from every leading ripple (50fbad5)
 def test_withheld_effect_is_named(eid):
     traces = withheld_dataset(eid, conditions=CONDITIONS, base={"A": 0.015})
     res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
