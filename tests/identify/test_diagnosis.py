@@ -300,6 +300,25 @@ def test_options_and_cli_bad_input(capsys, tmp_path):
     assert "error: --effects 'bogus'" in err and "Traceback" not in err
     assert main(["diagnose", str(SMALL[0]), "--folds", "two", "--json", str(out)]) == 2
     assert "--folds 'two'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        main(["diagnose", str(SMALL[0]), "--resequence", "sometimes", "--json", str(out)])
+    assert exit_.value.code == 2 and "invalid choice: 'sometimes'" in capsys.readouterr().err
+
+
+def test_cli_resequence_reaches_the_options(monkeypatch, tmp_path):
+    import identify.diagnosis as dg
+
+    seen = []
+
+    def fake(data, *, options=None, **kw):
+        seen.append(options.resequence)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(dg, "diagnose", fake)
+    for flag, value in (("auto", "auto"), ("always", True), ("never", False)):
+        with pytest.raises(RuntimeError, match="stop here"):
+            main(["diagnose", str(SMALL[0]), "--resequence", flag, "--json", str(tmp_path / "d.json")])
+        assert seen[-1] is value or seen[-1] == value
 
 
 def test_cli_diagnose_writes_json(tmp_path, capsys):
