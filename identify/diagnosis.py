@@ -92,7 +92,7 @@ class DiagnosisOptions:
         moved triggers), which the model with the effect then misfits. A new sequence is
         kept only if it lowers χ² (with the within-plateau sums). ``"auto"`` (default):
         only while the named model's held-out gap is above ``gap_tolerance`` times the
-        noise. Measured on the benchmark's topography set (λ = 4 µm; at 65a0b09, the
+        noise, or could not be computed. Measured on the benchmark's topography set (λ = 4 µm; at 65a0b09, the
         candidate alone): named with a = 0.0255 ± 0.0002 (truth 0.03) and the held-out gap
         at 1.51× the noise, ``unexplained``; the sequence decided again moved 4 triggers in
         15 s, χ² 13842 -> 10730, a = 0.0295, λ = 3.997 µm, φ = 0.69 (truth 0.7), held-out gap
@@ -127,6 +127,8 @@ class DiagnosisOptions:
             raise ValueError(f"folds = {self.folds!r}: use 'loo' or an integer >= 2")
         if self.resequence not in (True, False, "auto"):
             raise ValueError(f"resequence = {self.resequence!r}: use True, False or 'auto'")
+        if not isinstance(self.resequence, str):  # (1, np.True_: diagnose() tests ``is True``)
+            object.__setattr__(self, "resequence", bool(self.resequence))
 
 
 # ----------------------------------------------------------------------------- executors
@@ -244,7 +246,8 @@ class DiagnosisResult:
             final=self.final,
             baseline=self.baseline.to_json() if self.baseline is not None else None,
             options=dict(effects=list(self.options.effects), folds=self.options.folds, alpha=self.options.alpha,
-                         workers=self.options.workers, dask=bool(self.options.dask)),
+                         workers=self.options.workers, dask=bool(self.options.dask),
+                         gap_tolerance=self.options.gap_tolerance, resequence=self.options.resequence),
             timing=self.timing, notes=self.notes,
         )
 
@@ -276,7 +279,7 @@ _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delt
               "heldout_unverified_folds", "heldout_error", "heldout_delta_nll", "explained_share",
               "closes", "gap_sigma_before", "gap_sigma_after", "heldout_gap_sigma_before",
               "heldout_gap_sigma_after", "heldout_by_fold", "heldout_set_aside", "at_floor",
-              "heldout_gap_ratio_before", "beside")
+              "heldout_gap_ratio_before", "beside", "mimicked")
 
 
 def _cand_json(c: dict) -> dict:
@@ -894,7 +897,8 @@ def _beside(chosen, scored, base, current, runs, fopts, opts, threads, executor,
         reff = get_effect(rival["effect"])
         nulls = eff.null_values(rival["values"])
         free = tuple(rival["free"])
-        # from its own estimates, the null or its nudges, whichever fits best at the start
+        # one basin: its own estimates, the null or its nudges, and the leading ripple's
+        # starts for the topography, whichever fits best at the start
         starts = [dict(own)] + [s for s in _starts(eff, nulls, where_hint) if not s.get("_basin")]
         task = CandidateTask(
             effect=chosen["effect"], runs=runs, law=rival["law"], values={**rival["values"], **nulls}, free=free,

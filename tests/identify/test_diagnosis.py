@@ -294,6 +294,7 @@ def test_options_and_cli_bad_input(capsys, tmp_path):
         DiagnosisOptions(alpha=2)
     with pytest.raises(ValueError, match="resequence = 'sometimes'"):
         DiagnosisOptions(resequence="sometimes")
+    assert DiagnosisOptions(resequence=np.True_).resequence is True and DiagnosisOptions(resequence=0).resequence is False
     out = tmp_path / "d.json"
     assert main(["diagnose", str(SMALL[0]), "--effects", "drift,bogus", "--json", str(out)]) == 2
     err = capsys.readouterr().err
@@ -329,6 +330,7 @@ def test_cli_diagnose_writes_json(tmp_path, capsys):
     js = json.loads(out.read_text())
     assert js["verdict"] in ("adequate", "unexplained")
     assert js["candidates"][0]["effect"] == "drift"
+    assert js["options"]["resequence"] == "auto" and js["options"]["gap_tolerance"] == 1.5
     assert (tmp_path / "fig" / "gap_shrinkage.png").exists()
 
 
