@@ -402,17 +402,10 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
             rnd = [base] + sorted(scored, key=_rank) + skipped
             rounds.append(rnd)
             n_cand = len([t for t in tasks if t.effect])
-            checks = []
-
-            def check(c):
-                before = len(c.get("beside", []))
-                g = _beside(c, scored, base, current, runs, fopts, opts, threads, own, where0, n_cand, say)
-                checks.append(len(c.get("beside", [])) - before)
-                return g
-
-            chosen, groups = _choose(scored, base, check)
+            chosen, groups = _choose(scored, base, lambda c: _beside(c, scored, base, current, runs, fopts, opts,
+                                                                     threads, own, where0, n_cand, say))
             confounded.extend(groups)
-            n_refits += sum(checks)
+            n_refits += sum(len(c.get("beside", [])) for c in scored)  # each check is a refit
             if chosen is None or len(effects) >= opts.max_effects:
                 break  # (a round of the final model alone also ends here: it has no candidates)
             chosen["named"] = True
@@ -457,9 +450,8 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
              and c.get("effect") not in effects and not c.get("confounded_with")
              and (c.get("closes") or c.get("heldout_error"))]
     grouped = {e for g in confounded if g.get("closes") for e in g["effects"]}
-    ratio = (final_res["heldout"]["gap_um"] / final_res["gap"]["noise_um"]
-             if final_res and final_res.get("ok") and final_res["gap"]["noise_um"] > 0 else float("nan"))
-    within = bool(np.isfinite(ratio) and ratio <= opts.gap_tolerance)
+    ratio = _gap_ratio(final_res) if final_res and final_res.get("ok") else float("nan")
+    within = _at_noise(final_res, opts) if final_res and final_res.get("ok") else False
     # within the tolerance there is no gap left for an unnamed candidate to explain
     if within or (not misfit_left and not still and not grouped):
         verdict = "adequate"
@@ -860,10 +852,15 @@ def _choose(scored, base, check):
         chosen, group = _select(scored, base)
 
 
+def _gap_ratio(c) -> float:
+    """A measured model's held-out gap over its noise floor (NaN when either is missing)."""
+    noise = (c.get("gap") or {}).get("noise_um", float("nan"))
+    return (c.get("heldout") or {}).get("gap_um", float("nan")) / noise if noise and noise > 0 else float("nan")
+
+
 def _at_noise(c, opts) -> bool:
     """Whether a measured model's held-out gap is within the verdict's tolerance."""
-    noise = (c.get("gap") or {}).get("noise_um", float("nan"))
-    ratio = (c.get("heldout") or {}).get("gap_um", float("nan")) / noise if noise and noise > 0 else float("nan")
+    ratio = _gap_ratio(c)
     return bool(np.isfinite(ratio) and ratio <= opts.gap_tolerance)
 
 
