@@ -279,7 +279,7 @@ _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delt
               "heldout_unverified_folds", "heldout_error", "heldout_delta_nll", "explained_share",
               "closes", "gap_sigma_before", "gap_sigma_after", "heldout_gap_sigma_before",
               "heldout_gap_sigma_after", "heldout_by_fold", "heldout_set_aside", "at_floor",
-              "heldout_gap_ratio_before", "beside", "mimicked")
+              "heldout_gap_ratio_before", "beside", "mimicked", "own_sequence")
 
 
 def _cand_json(c: dict) -> dict:
@@ -402,10 +402,19 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
             rnd = [base] + sorted(scored, key=_rank) + skipped
             rounds.append(rnd)
             n_cand = len([t for t in tasks if t.effect])
+            retry = None
+            if opts.resequence is not False:
+                retry = lambda c: _own_sequence(c, base, current, runs, fopts, prob, folds, opts,  # noqa: E731
+                                                threads, own, say)
             chosen, groups = _choose(scored, base, lambda c: _beside(c, scored, base, current, runs, fopts, opts,
-                                                                     threads, own, where0, n_cand, say))
+                                                                     threads, own, where0, n_cand, say), retry)
             confounded.extend(groups)
             n_refits += sum(len(c.get("beside", [])) for c in scored)  # each check is a refit
+            # each measurement on a candidate's own sequence, and of the current model's control
+            n_refits += sum(c.get("own_sequence", {}).get("refits", 0) for c in scored)
+            adopted = chosen.pop("_own", None) if chosen is not None else None
+            for c in scored:
+                c.pop("_own", None)  # (the models of candidates not named)
             if chosen is None or len(effects) >= opts.max_effects:
                 break  # (a round of the final model alone also ends here: it has no candidates)
             chosen["named"] = True
@@ -415,15 +424,17 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
             # effect explains part of the misfit, it does not create evidence elsewhere
             remaining = [c["effect"] for c in scored if c.get("significant") and c["effect"] != chosen["effect"]]
             eff = get_effect(chosen["effect"])
-            current = dict(values=chosen["values"], free=tuple(chosen["free"]), law=chosen["law"], w=chosen["w"],
-                           ev_M=chosen["ev_M"], n_theta=len(chosen["free"]), chi2=chosen["chi2"],
-                           n_eff=chosen["n_eff"],
-                           bounds={**current.get("bounds", {}), **dict(eff.bounds)})
+            if adopted:  # named on the mode sequence it decided: go on from there, as measured there
+                current, runs, final_res = adopted["current"], adopted["runs"], adopted["measured"]
+            else:
+                current = dict(values=chosen["values"], free=tuple(chosen["free"]), law=chosen["law"],
+                               w=chosen["w"], ev_M=chosen["ev_M"], n_theta=len(chosen["free"]), chi2=chosen["chi2"],
+                               n_eff=chosen["n_eff"], bounds={**current.get("bounds", {}), **dict(eff.bounds)})
             say(f"added {chosen['effect']} ({', '.join(eff.parameters) or eff.law}); trying the rest again")
             if len(effects) >= opts.max_effects:
                 remaining = []
             changed = False
-            if opts.resequence is True or (opts.resequence == "auto" and not _at_noise(chosen, opts)):
+            if not adopted and (opts.resequence is True or (opts.resequence == "auto" and not _at_noise(chosen, opts))):
                 try:
                     current, runs, changed = _resequence(current, runs, fopts, prob, say)
                 except Exception as err:  # the named model stands with the baseline's sequence
@@ -434,7 +445,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
                 # measured on the same folds (a round of it alone refitted every held-out
                 # fold again: 8 exact refits, ~10 min, on the drift data), and no candidate
                 # is left for the verdict to judge
-                rounds.append([dict(chosen, effect=None, named=False)])
+                rounds.append([dict(final_res if adopted else chosen, effect=None, named=False)])
                 break
     finally:
         if closer is not None:
@@ -776,6 +787,9 @@ def _route(c):
     without one run", "likelihood without one run", or None."""
     if c.get("closed_fraction", 0.0) >= MIN_CLOSED:
         return "gap"
+    own = c.get("own_sequence") or {}
+    if own.get("changed") and not own.get("error") and own.get("closed_fraction", 0.0) >= MIN_CLOSED:
+        return "gap on its own mode sequence"
     at_floor = c.get("at_floor", False)
     if at_floor and _likelihood_closes(c.get("explained_share", 0.0), c.get("heldout_delta_nll", float("nan")),
                                        c["delta_nll"]):
@@ -806,8 +820,11 @@ def _set_aside_usable(c):
     return None
 
 
-def _select(scored, base):
-    """The candidate to add, and a confounded group when the best cannot be told apart."""
+def _select(scored, base, retry=None):
+    """The candidate to add, and a confounded group when the best cannot be told apart.
+    ``retry`` (:func:`_own_sequence`) measures a candidate that fits much better but does
+    not close the gap on the current mode sequence on the sequence it decides itself
+    (:func:`_worth_own_sequence`), before a weaker one is tried."""
     ok = [c for c in scored if c.get("ok") and c.get("significant")]
     for c in ok:
         if c["confounded_with"] and not c.get("confounded_beside"):
@@ -819,6 +836,10 @@ def _select(scored, base):
     names.sort(key=lambda c: c["delta_aic"])
     for k, best in enumerate(names):
         chosen, group = _try(best, names[k + 1:])
+        if chosen is None and group is None and retry is not None and _worth_own_sequence(best):
+            retry(best)  # records best["own_sequence"] and judges it again
+            best["closes"] = _closes(best)
+            chosen, group = _try(best, names[k + 1:])
         if chosen is not None or group is not None:
             return chosen, group
         if best.get("closes") and not _converged(best):
@@ -834,12 +855,12 @@ def _select(scored, base):
     return None, None
 
 
-def _choose(scored, base, check):
+def _choose(scored, base, check, retry=None):
     """:func:`_select`, then ``check`` (:func:`_beside`) on its choice: a choice the check
     demotes (it returns the confounded group) gives way to the next :func:`_select` picks.
     The chosen candidate (or None) and every confounded group found on the way."""
     groups = []
-    chosen, group = _select(scored, base)
+    chosen, group = _select(scored, base, retry)
     while True:
         if group:
             groups.append(group)
@@ -849,7 +870,7 @@ def _choose(scored, base, check):
         if group is None:
             return chosen, groups
         groups.append(group)
-        chosen, group = _select(scored, base)
+        chosen, group = _select(scored, base, retry)
 
 
 def _gap_ratio(c) -> float:
@@ -940,6 +961,96 @@ def _converged(c) -> bool:
     return str(c.get("status", "")).startswith(("Solve_Succeeded", STALLED))
 
 
+def _worth_own_sequence(c) -> bool:
+    """Whether a candidate that does not close the held-out gap on the current model's
+    mode sequence is measured on the sequence it decides itself (:func:`_own_sequence`):
+    a converged refit, away from the encoding's floor, that removes at least MIN_CLOSED
+    of the current model's excess χ² on the fitted runs — it explains much of the misfit,
+    yet predicts the held-out runs little better, the mark of a sequence bent to the
+    current model."""
+    return bool(_converged(c) and not c.get("closes") and not c.get("at_floor", False)
+                and c.get("explained_share", 0.0) >= MIN_CLOSED and "own_sequence" not in c)
+
+
+def _own_text(own: dict) -> str:
+    if own.get("error"):
+        return f"deciding its own mode sequence failed: {own['error']}"
+    if not own.get("changed"):
+        return "its own mode sequence is the current model's"
+    moved = (f"{own['triggers_moved']} trigger(s) moved, {own['slips_inserted']} slip(s) inserted, "
+             f"{own['slips_removed']} removed")
+    before = own["heldout_gap_before_um"]
+    ctrl = own.get("current_resequenced")
+    against = (f", against the current model's {before * 1e3:.1f} nm on the sequence it decides again "
+               f"({ctrl['triggers_moved']} trigger(s) moved, {ctrl['slips_inserted']} inserted, "
+               f"{ctrl['slips_removed']} removed)" if ctrl and ctrl.get("changed") else
+               f", against {before * 1e3:.1f} nm" if np.isfinite(before) else "")
+    return (f"on the mode sequence it decides ({moved}) it closes {100 * max(own['closed_fraction'], 0):.0f} %: "
+            f"held-out gap {own['heldout_gap_after_um'] * 1e3:.1f} nm{against}")
+
+
+def _own_sequence(c, base, current, runs, fopts, prob0, folds, opts, threads, executor, say):
+    """The candidate ``c`` measured on the mode sequence it decides itself: its held-out
+    gap there against the current model's on the current model's own sequence, in
+    ``c["own_sequence"]`` (JSON-able; the new model and runs in ``c["_own"]`` for naming).
+
+    Why: the current model's fit decided the sequence (moved triggers, inserted slips) to
+    suit the current model; a candidate refitted on that sequence inherits the bends, and
+    its held-out runs are predicted on them. Measured (logarithmic-law data, a baseline
+    with the exponential law, at c43227d): the baseline's fit moved 112 triggers and
+    inserted 15 slips; the law's refit removed 50 % of the excess χ² (ΔAIC −28 181) but
+    closed only 28 % of the held-out gap (30 % needed), and nothing was named.
+
+    Fair to both: the current model is given its sequence decided again from its own
+    solution too, and measured there when that changes it (only once the candidate
+    passes: decided once in its fit, it mostly stands)."""
+    rec = dict(changed=False, refits=0)
+    c["own_sequence"] = rec
+
+    def measure(model, runs_):
+        task = _tasks([], model, runs_, fopts, folds, opts, threads, where_hint=[])[0][0]
+        rec["refits"] += 1
+        res = executor.submit(run_candidate, task).result()
+        if not res.get("ok") or not np.isfinite((res.get("heldout") or {}).get("gap_um", float("nan"))):
+            raise RuntimeError(f"its held-out gap could not be measured ({res.get('status')}"
+                               f"{', ' + res['heldout']['error'] if (res.get('heldout') or {}).get('error') else ''})")
+        return res
+
+    try:
+        eff = get_effect(c["effect"])
+        cand = dict(values=dict(c["values"]), free=tuple(c["free"]), law=c["law"], w=c["w"], ev_M=c["ev_M"],
+                    n_theta=len(c["free"]), chi2=c["chi2"], n_eff=c["n_eff"],
+                    bounds={**current.get("bounds", {}), **dict(eff.bounds)})
+        say(f"  {c['effect']} explains {100 * c['explained_share']:.0f} % of the excess χ² but closes "
+            f"{100 * max(c['closed_fraction'], 0):.0f} % of the held-out gap: measured on its own mode sequence")
+        new, runs2, changed = _resequence(cand, runs, fopts, prob0, say)
+        if not changed:
+            return
+        m = measure(new, runs2)
+        noise = base["gap"]["noise_um"]
+        before, after = float(base["heldout"]["gap_um"]), float(m["heldout"]["gap_um"])
+        closed = _closed_share(before, after, noise)
+        ctrl = None
+        if closed >= MIN_CLOSED:
+            say("  and the current model on the sequence it decides again, for a fair comparison")
+            model_c, runs_c, changed_c = _resequence(current, runs, fopts, prob0, say)
+            ctrl = dict(changed=bool(changed_c), **model_c.get("sequence_changes", {}))
+            if changed_c:
+                before = float(measure(model_c, runs_c)["heldout"]["gap_um"])
+                closed = _closed_share(before, after, noise)
+        # recorded only now: a comparison the control could not complete names nothing
+        rec.update(changed=True, **new["sequence_changes"], heldout_gap_before_um=before, heldout_gap_after_um=after,
+                   gap_after_um=float(m["gap"]["gap_um"]), chi2=float(m["chi2"]), closed_fraction=float(closed))
+        if ctrl is not None:
+            rec["current_resequenced"] = ctrl
+        c["_own"] = dict(current=new, runs=runs2, measured=m)
+        say(f"  {c['effect']}: {_own_text(rec)}")
+    except Exception as err:  # the candidate is judged on the current sequence, as before
+        rec.update(changed=False, error=f"{type(err).__name__}: {err}")
+        c.pop("_own", None)
+        say(f"  {c['effect']}: {_own_text(rec)}")
+
+
 def _try(best, others):
     """``best`` if it can be named; a confounded group if another explains the same; else None."""
     ties = []
@@ -966,6 +1077,9 @@ def _try(best, others):
         um = f"closes {100 * max(best.get('closed_fraction', 0.0), 0):.0f} % of the held-out gap above the noise"
         if a:
             um += f" ({100 * max(a['closed_fraction'], 0):.0f} % without the run {', '.join(a['runs'])})"
+        own = best.get("own_sequence")
+        if own:
+            um += f" ({_own_text(own)})"
         if not best.get("at_floor", False):
             why = (f"the likelihood test does not apply: the held-out gap is {best['heldout_gap_ratio_before']:.2g}× "
                    f"the noise, above the encoding's own floor (needs {100 * MIN_CLOSED:.0f} % of the gap)")
@@ -982,6 +1096,9 @@ def _try(best, others):
         best["note"] = f"significant, but {um}; {why}; " + best["estimate_text"]
         return None, None
     best["note"] = "added; " + best["estimate_text"]
+    if _route(best) == "gap on its own mode sequence":
+        best["note"] += (f" (closes {100 * max(best['closed_fraction'], 0):.0f} % of the held-out gap on the "
+                         f"current model's mode sequence; {_own_text(best['own_sequence'])})")
     if _route(best) in ("gap without one run", "likelihood without one run"):
         # named on all runs but one: say which, and what the held-out figures are without it
         gaps = (f", held-out gap {a['heldout_gap_before_um'] * 1e3:.1f} -> {a['heldout_gap_after_um'] * 1e3:.1f} nm"
@@ -1019,12 +1136,13 @@ def _resequence(current, runs, fopts, prob0, say):
         not np.array_equal(a.trigger_steps, b.trigger_steps) for a, b in zip(p2.runs, runs))
     if not differs or not (np.all(np.isfinite(r)) and _excess(p2, r) < _excess(p, r0)):
         say("  the mode sequence stands")
-        return current, runs, False
+        return dict(current, sequence_changes=dict(triggers_moved=0, slips_inserted=0, slips_removed=0)), runs, False
     values.update(zip(p2.theta.names, (float(v) for v in p2.theta.from_scaled(sol["w"][: p2.n_theta]))))
     say(f"  {sol['triggers_moved']} trigger(s) moved, {sol['slips_inserted']} slip(s) inserted, "
         f"{sol['slips_removed']} removed: χ² {2 * f0 + p.chi2_constant():.6g} -> {float(r @ r) + p2.chi2_constant():.6g}")
     new = dict(current, values=values, w=sol["w"], ev_M=np.array(p2.ev_M), n_theta=p2.n_theta,
-               chi2=float(r @ r) + p2.chi2_constant(), n_eff=p2.n_effective())
+               chi2=float(r @ r) + p2.chi2_constant(), n_eff=p2.n_effective(),
+               sequence_changes={k: int(sol[k]) for k in ("triggers_moved", "slips_inserted", "slips_removed")})
     return new, list(p2.runs), True
 
 

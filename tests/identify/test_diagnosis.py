@@ -920,3 +920,116 @@ def test_a_choice_demoted_beside_a_rival_gives_way_to_the_next():
     off, drift = cand("load_offset", -30.0), cand("drift", -20.0)
     assert _choose([off, drift], {}, lambda c: None) == (off, [])
     assert _choose([], {}, check) == (None, [])
+
+
+def test_a_candidate_that_explains_much_but_closes_little_is_judged_on_its_own_mode_sequence():
+    """Measured (logarithmic-law data, an exponential-law baseline, c43227d): the baseline's
+    fit moved 112 triggers and inserted 15 slips; the law removed 50 % of the excess χ²
+    but closed 28 % of the held-out gap on that sequence, and nothing was named. Such a
+    candidate is measured on the sequence it decides itself before a weaker one is tried."""
+    from identify.diagnosis import _choose, _select
+
+    def cand(effect, daic, closed, share):
+        return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
+                    status="Solve_Succeeded", closes=closed >= 0.3, closed_fraction=closed, explained_share=share,
+                    heldout_delta_nll=100.0, delta_nll=50.0, estimate_text=effect, dr=np.eye(3)[len(effect) % 3],
+                    at_floor=False, heldout_gap_ratio_before=7.0)
+
+    asked = []
+
+    def retry(closed):
+        def run(c):
+            asked.append(c["effect"])
+            c["own_sequence"] = dict(changed=True, triggers_moved=40, slips_inserted=3, slips_removed=1,
+                                     heldout_gap_before_um=0.172, heldout_gap_after_um=0.05, closed_fraction=closed)
+        return run
+
+    law, off = cand("aging_logarithmic", -28000.0, 0.28, 0.5), cand("load_offset", -30.0, 0.4, 0.5)
+    chosen, groups = _choose([law, off], {}, lambda c: None, retry(0.75))
+    assert chosen is law and groups == [] and asked == ["aging_logarithmic"]
+    assert "on the mode sequence it decides (40 trigger(s) moved" in law["note"] and "closes 75 %" in law["note"]
+    assert law["closes"] is True
+    # closing little there too: judged as before, the next one named, the reason kept
+    law, off = cand("aging_logarithmic", -28000.0, 0.28, 0.5), cand("load_offset", -30.0, 0.4, 0.5)
+    assert _select([law, off], {}, retry(0.1))[0] is off
+    assert "closes 10 %" in law["note"] and law["closes"] is False
+    asked.clear()
+    assert _select([law, off], {}, retry(0.9))[0] is off and asked == []  # measured once only
+    # nor for a candidate that explains little of the misfit, or one at the encoding's floor
+    for kw in (dict(explained_share=0.1), dict(at_floor=True), dict(status="Line_Search_Failed")):
+        law = {**cand("aging_logarithmic", -28000.0, 0.28, 0.5), **kw}
+        _select([law], {}, retry(0.9))
+        assert asked == [] and "own_sequence" not in law
+    # with resequencing off there is no retry: the old judgement
+    law = cand("aging_logarithmic", -28000.0, 0.28, 0.5)
+    assert _select([law], {}) == (None, None) and "own_sequence" not in law
+
+
+def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(monkeypatch):
+    import identify.diagnosis as dg
+
+    gaps = {"logarithmic": 0.05, "exponential": 0.15}  # held-out gap of each model once re-sequenced
+    calls = []
+
+    def reseq(model, runs, fopts, prob0, say):
+        calls.append(model["law"])
+        moved = dict(triggers_moved=5, slips_inserted=1, slips_removed=0)
+        if model["law"] == "exponential" and not control_changes:
+            return dict(model, sequence_changes=dict.fromkeys(moved, 0)), runs, False
+        return dict(model, sequence_changes=moved), runs + ["new"], True
+
+    def run(task):
+        assert task.effect is None and task.folds == [[0], [1]]
+        return dict(ok=True, status="Solve_Succeeded", chi2=10.0, heldout=dict(gap_um=gaps[task.law]),
+                    gap=dict(gap_um=0.03))
+
+    class Now:
+        def submit(self, fn, task):
+            from concurrent.futures import Future
+            f = Future()
+            f.set_result(fn(task))
+            return f
+
+    monkeypatch.setattr(dg, "_resequence", reseq)
+    monkeypatch.setattr(dg, "run_candidate", run)
+    model = dict(values={"mu_max": 0.8}, free=("mu_max",), w=np.zeros(3), ev_M=np.zeros(1), chi2=20.0, n_eff=1)
+    base = dict(gap=dict(noise_um=0.025, gap_um=0.1), heldout=dict(gap_um=0.172))
+
+    def own(**kw):
+        c = dict(model, effect="aging_logarithmic", law="logarithmic", explained_share=0.5, closed_fraction=0.28,
+                 **kw)
+        dg._own_sequence(c, base, dict(model, law="exponential", n_theta=1), ["r"], identify.FitOptions(), None,
+                         [[0], [1]], DiagnosisOptions(), 1, Now(), lambda m: None)
+        return c
+
+    control_changes = False
+    c = own()
+    rec = c["own_sequence"]
+    assert calls == ["logarithmic", "exponential"]  # its own sequence, then the control's
+    assert rec["changed"] and rec["current_resequenced"]["changed"] is False
+    ex = lambda g: np.sqrt(g * g - 0.025 ** 2)  # noqa: E731  (above the noise)
+    assert rec["closed_fraction"] == pytest.approx((ex(0.172) - ex(0.05)) / ex(0.172))
+    assert c["_own"]["runs"] == ["r", "new"] and c["_own"]["measured"]["heldout"]["gap_um"] == 0.05
+    json.dumps(rec)  # the record goes to the JSON as it is
+    # the current model's sequence changes too: the comparison is with it measured there
+    control_changes, calls[:] = True, []
+    rec = own()["own_sequence"]
+    assert rec["heldout_gap_before_um"] == 0.15
+    assert rec["closed_fraction"] == pytest.approx((ex(0.15) - ex(0.05)) / ex(0.15))
+    assert "against the current model's 150.0 nm on the sequence it decides again" in dg._own_text(rec)
+    assert rec["refits"] == 2
+    # a failure is recorded, not raised: the candidate is judged on the current sequence,
+    # also when only the control failed (its comparison alone would be the unfair one)
+
+    def broken(model, *a):
+        if model["law"] == "exponential":
+            raise RuntimeError("no finite start")
+        return reseq(model, *a)
+
+    monkeypatch.setattr(dg, "_resequence", broken)
+    c = own(status="Solve_Succeeded", significant=True, ok=True, confounded_with=[], delta_aic=-28000.0,
+            closes=False, at_floor=False, heldout_gap_ratio_before=7.0, estimate_text="B = 0.08", dr=np.ones(2))
+    rec = c["own_sequence"]
+    assert rec["changed"] is False and "no finite start" in rec["error"] and "closed_fraction" not in rec
+    assert rec["refits"] == 1 and "_own" not in c and not dg._worth_own_sequence(c)
+    assert dg._route(c) is None and dg._try(c, [])[0] is None and "failed: RuntimeError" in c["note"]
