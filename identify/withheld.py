@@ -43,17 +43,19 @@ CONDITIONS = (
 QUICK_CONDITIONS = tuple((k, nb, fp, min(tr, 15.0)) for k, nb, fp, tr in CONDITIONS)
 
 
-def withheld_dataset(effect: str | None, magnitude: float | None = None, *, coating: str = "FOTAS",
-                     seed: int = 0, noise_nm: float = 90.0, conditions: Sequence = CONDITIONS,
-                     base: dict | None = None) -> list:
+def withheld_dataset(effect: str | Sequence[str] | None, magnitude: float | Sequence | None = None, *,
+                     coating: str = "FOTAS", seed: int = 0, noise_nm: float = 90.0,
+                     conditions: Sequence = CONDITIONS, base: dict | None = None) -> list:
     """Traces of ``conditions`` simulated with ``effect`` on (seeded noise per run).
 
     Parameters
     ----------
-    effect : str or None
-        An id of :data:`identify.effects.EFFECTS`, ``"outside"``, or None (no effect).
-    magnitude : float, optional
-        Value of the effect's parameter (default: its realistic magnitude).
+    effect : str, sequence of str, or None
+        An id of :data:`identify.effects.EFFECTS`, ``"outside"``, or None (no effect); or
+        several ids, every one of them on at once (forward selection must name each).
+    magnitude : float or sequence, optional
+        Value of the effect's parameter (default: its realistic magnitude); with several
+        effects, one value (or None) per effect.
     base : dict, optional
         Parameter overrides of the truth (e.g. ``{"A": 0.015}``).
     """
@@ -64,16 +66,19 @@ def withheld_dataset(effect: str | None, magnitude: float | None = None, *, coat
     truth.update(base or {})
     law = "exponential"
     load_err = np.ones(len(conditions))
-    if effect == "outside":
+    ids, mags = _effects_and_magnitudes(effect, magnitude)
+    if ids == ["outside"]:
         rng = np.random.default_rng(10_000 + seed)
         load_err = 1 + rng.uniform(-0.15, 0.15, len(conditions))
-    elif effect is not None:
-        eff = get_effect(effect)
+    for eid, mag in zip(ids, mags):
+        if eid == "outside":
+            continue
+        eff = get_effect(eid)
         if eff.law is not None:
             law = eff.law
             truth.update(_law_truth(eff.law, truth))
         else:
-            truth.update(eff.simulation_values(magnitude))
+            truth.update(eff.simulation_values(mag))
     traces = []
     camera = {n: truth.pop(n) for n in ("exposure", "drift_rate", "e_offset") if n in truth}
     for i, (k, nb, fp, travel) in enumerate(conditions):
@@ -82,10 +87,32 @@ def withheld_dataset(effect: str | None, magnitude: float | None = None, *, coat
         tr = run.sample(noise_nm=noise_nm, seed=1000 * seed + i, name=f"k{k:g}_Nb{nb:g}uN_fp{fp:g}Hz",
                         exposure_s=camera.get("exposure", 0.0), drift_rate_m_per_s=camera.get("drift_rate", 0.0),
                         offset_m=camera.get("e_offset", 0.0))
-        if effect == "outside":
+        if ids == ["outside"]:
             tr = _with_nominal_load(tr, nb * 1e-6)
         traces.append(tr)
     return traces
+
+
+def _effects_and_magnitudes(effect, magnitude) -> tuple[list, list]:
+    """The effect ids and their magnitudes, checked: ("outside" alone; at most one aging law;
+    no effect twice; one magnitude per effect)."""
+    if effect is None:
+        return [], []
+    if isinstance(effect, str):
+        return [effect], [magnitude]
+    ids = list(effect)
+    mags = [None] * len(ids) if magnitude is None else list(np.atleast_1d(np.asarray(magnitude, dtype=object)))
+    if len(mags) != len(ids):
+        raise ValueError(f"magnitude: {len(mags)} value(s) for {len(ids)} effects {ids}; give one per effect "
+                         "(None for the realistic magnitude)")
+    if len(set(ids)) != len(ids):
+        raise ValueError(f"effect: {ids} names an effect twice")
+    if "outside" in ids and len(ids) > 1:
+        raise ValueError("effect: 'outside' is a data set of its own and cannot be combined with library effects")
+    laws = [e for e in ids if e != "outside" and get_effect(e).law is not None]
+    if len(laws) > 1:
+        raise ValueError(f"effect: {laws} are aging laws; the data can follow only one")
+    return ids, mags
 
 
 def _law_truth(law: str, truth: dict) -> dict:

@@ -1,6 +1,6 @@
 """Diagnosis benchmark: confusion table over the effect library, detection limits, speed.
 
-    python tests/bench/bench_diagnosis.py confusion [--effects a,b] [--scales 1,0.3,0.1]
+    python tests/bench/bench_diagnosis.py confusion [--effects a,b,c+d] [--scales 1,0.3,0.1]
         [--quick] [--workers 2] [--out bench_diagnosis.jsonl]
     python tests/bench/bench_diagnosis.py speed [--workers 2]
 
@@ -10,7 +10,8 @@ realistic departure from its null (:meth:`identify.effects.Effect.scaled_magnitu
 fit the baseline without it, diagnose with every candidate, and record what was named, what was reported confounded, the verdict and the held-out gap before/after.
 One JSON line per case is appended as soon as it is done (nothing is lost to a stop);
 the table is printed at the end. The detection limit of an effect is the smallest
-magnitude at which it is still named (or reported confounded).
+magnitude at which it is still named (or reported confounded). ``a+b``: both effects on
+in one data set (forward selection must name each).
 
 ``speed``: one full diagnosis of the 8-run withheld-conditions set (identify.withheld.CONDITIONS) with all candidates and
 leave-one-run-out, against the time of its own baseline fit measured in the same run.
@@ -41,20 +42,38 @@ def _baseline_options(eid):
     return identify.FitOptions(fixed=fixed, free=free)
 
 
+def _magnitude(eid, scale):
+    if eid in (None, "outside"):
+        return None
+    eff = get_effect(eid)
+    return eff.scaled_magnitude(scale) if eff.nested and eff.magnitude else None
+
+
 def case(eid, scale, quick, workers, seed=0):
-    mag = None
-    if eid not in (None, "outside"):
-        eff = get_effect(eid)
-        if eff.nested and eff.magnitude:
-            mag = eff.scaled_magnitude(scale)
+    """One data set: ``eid`` an effect id, None, "outside", or ids joined by "+" (every one
+    of them on at once, each at ``scale``; the baseline fixes what any of them needs)."""
+    ids = eid.split("+") if eid and "+" in eid else None
+    mag = [_magnitude(e, scale) for e in ids] if ids else _magnitude(eid, scale)
     conds = QUICK_CONDITIONS if quick else CONDITIONS
     base = {"A": 0.015}
-    traces = withheld_dataset(eid, mag, seed=seed, conditions=conds, base=base)
+    traces = withheld_dataset(ids or eid, mag, seed=seed, conditions=conds, base=base)
     t0 = time.perf_counter()
-    res = diagnose(traces, fit_options=_baseline_options(eid), options=DiagnosisOptions(workers=workers))
+    fopts = _baseline_options(eid)
+    if ids:
+        per = [_baseline_options(e) for e in ids]
+        fopts = identify.FitOptions(fixed={k: v for o in per for k, v in o.fixed.items()},
+                                    free=tuple(n for n in per[0].free if all(n in o.free for o in per)))
+    res = diagnose(traces, fit_options=fopts, options=DiagnosisOptions(workers=workers))
     first = {c["effect"]: c for c in res.candidates}
-    truth = first.get(eid, {})
-    return dict(effect=eid, scale=scale, magnitude=mag, verdict=res.verdict, named=res.effects,
+    truth = first.get(ids[0] if ids else eid, {})
+    extra = {}
+    if ids:  # each withheld effect: its first-round evidence, and whether it was named
+        extra["truth_by_effect"] = {e: dict(named=e in res.effects, p=first.get(e, {}).get("p_value"),
+                                            closed=first.get(e, {}).get("closed_fraction"),
+                                            confounded_with=first.get(e, {}).get("confounded_with"),
+                                            estimates=first.get(e, {}).get("estimates"))
+                                    for e in ids}
+    return dict(effect=eid, scale=scale, magnitude=mag, verdict=res.verdict, named=res.effects, **extra,
                 confounded=[g["effects"] for g in res.confounded],
                 truth_confounded_with=truth.get("confounded_with"), truth_p=truth.get("p_value"),
                 truth_delta_aic=truth.get("delta_aic"), truth_status=truth.get("status"),
@@ -79,7 +98,8 @@ def confusion(args):
     scales = [float(s) for s in args.scales.split(",")]
     out = Path(args.out)
     for eid in ids:
-        for sc in (scales if eid not in ("none", "outside") and get_effect(eid).nested else [1.0]):
+        nested = eid not in ("none", "outside") and all(get_effect(e).nested for e in eid.split("+"))
+        for sc in (scales if nested else [1.0]):
             try:
                 row = case(None if eid == "none" else eid, sc, args.quick, args.workers)
             except Exception as err:  # one failed case never sinks the table

@@ -133,3 +133,13 @@ def test_withheld_datasets_switch_the_effect_on():
     # the metadata keep the nominal loads; the frames were made with other ones
     assert [tr.normal_load for tr in out] == pytest.approx([5e-6, 30e-6])
     assert np.max(np.abs(out[0].elongation - base[0].elongation)) > 1e-8
+    # several effects at once: each on, as it would be alone
+    both = withheld_dataset(["drift", "load_offset"], [1e-7, None], conditions=cond)
+    offset = withheld_dataset("load_offset", conditions=cond)
+    np.testing.assert_allclose(both[0].elongation - offset[0].elongation, 1e-7 * t, atol=1e-12)
+    for bad, why in ((dict(effect=["drift", "drift"]), "twice"),
+                     (dict(effect=["aging_logarithmic", "aging_logistic"]), "only one"),
+                     (dict(effect=["outside", "drift"]), "cannot be combined"),
+                     (dict(effect=["drift", "step_size"], magnitude=[1e-8]), "one per effect")):
+        with pytest.raises(ValueError, match=why):
+            withheld_dataset(conditions=cond, **bad)
