@@ -457,8 +457,9 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
     # significant candidates that would close a real part of the gap but could not be
     # named (no convergence, a confounded group): the gap is then not explained. One that
     # is formally significant but closes little is the encoding's own misfit, not evidence.
-    still = [c for c in (rounds[-1] if rounds else []) if c.get("significant") and not c.get("named")
-             and c.get("effect") not in effects and not c.get("confounded_with")
+    # (the final round's record of the named model itself has effect None: not a candidate)
+    still = [c for c in (rounds[-1] if rounds else []) if c.get("effect") is not None and c.get("significant")
+             and not c.get("named") and c.get("effect") not in effects and not c.get("confounded_with")
              and (c.get("closes") or c.get("heldout_error"))]
     grouped = {e for g in confounded if g.get("closes") for e in g["effects"]}
     ratio = _gap_ratio(final_res) if final_res and final_res.get("ok") else float("nan")

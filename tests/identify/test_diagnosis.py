@@ -702,6 +702,8 @@ def test_a_named_effect_ends_the_diagnosis_without_measuring_it_twice(offset_bas
     assert res.final["heldout_gap_um"] == c["heldout_gap_after_um"] < c["heldout_gap_before_um"]
     assert res.final["values"]["load_offset"] == pytest.approx(c["estimates"]["load_offset"]["value"])
     assert "round 2" in res.report()
+    # the final round's record of the named model is no candidate left unexplained
+    assert not any("candidate None" in n or "significant but not named" in n for n in res.notes), res.notes
 
 
 def test_auto_resequencing_only_while_the_named_model_misfits(offset_baseline):
