@@ -55,7 +55,10 @@ DAMPING_ABSORBED = pytest.mark.xfail(strict=True, reason=(
                                  "step_size",
                                  pytest.param("damping", marks=DAMPING_ABSORBED), "load_offset",
                                  "spring_nonlinearity",
-                                 "topography"])  # its refit from every leading ripple (50fbad5)
+                                 "topography",  # its refit from every leading ripple (50fbad5)
+                                 # judged on the mode sequence it decides itself (d759a53): named,
+                                 # the verdict unexplained at 1.62× the noise; ~80 min
+                                 "aging_logarithmic"])
 def test_withheld_effect_is_named(eid):
     traces = withheld_dataset(eid, conditions=CONDITIONS, base={"A": 0.015})
     res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
@@ -63,3 +66,16 @@ def test_withheld_effect_is_named(eid):
     assert eid in res.effects or c["confounded_with"], res.report()
     if eid in res.effects:
         assert c["heldout_gap_after_um"] < c["heldout_gap_before_um"]
+
+
+def test_two_withheld_effects_are_both_named():
+    """Forward selection with two effects at once (issue 5, item 3): a load offset and a
+    puller step off its metadata, each at its realistic magnitude."""
+    traces = withheld_dataset(["load_offset", "step_size"], conditions=CONDITIONS, base={"A": 0.015})
+    res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
+    assert sorted(res.effects) == ["load_offset", "step_size"], res.report()
+    assert res.verdict == "adequate", res.report()
+    assert res.final["values"]["load_offset"] == pytest.approx(2e-6, rel=0.1)
+    assert res.final["values"]["step_scale"] == pytest.approx(1.05, abs=0.005)
+    first = next(c for c in res.candidates if c["effect"] == res.effects[0])
+    assert res.final["heldout_gap_um"] < first["heldout_gap_before_um"]
