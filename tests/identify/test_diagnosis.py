@@ -1035,3 +1035,24 @@ def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(mo
     assert rec["changed"] is False and "no finite start" in rec["error"] and "closed_fraction" not in rec
     assert rec["refits"] == 1 and "_own" not in c and not dg._worth_own_sequence(c)
     assert dg._route(c) is None and dg._try(c, [])[0] is None and "failed: RuntimeError" in c["note"]
+
+
+def test_a_candidate_whose_interval_holds_its_null_is_not_named():
+    """Measured (load offset and step size withheld together, round 3): rejuvenation gained
+    Δnll 19.9 (p = 2.7e-10) with dc = 7.1 ± 8.0 nm against its null of 20 nm (z = 1.6), and
+    its held-out gain lay in one run it did not fit better; it was named a third effect."""
+    from identify.diagnosis import NAME_Z, _select, _undetermined
+
+    def cand(effect, daic, z):
+        return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
+                    status="Solve_Succeeded", closes=True, closed_fraction=0.8, explained_share=0.5,
+                    heldout_delta_nll=100.0, delta_nll=50.0, estimate_text=effect, dr=np.eye(3)[len(effect) % 3],
+                    at_floor=False, heldout_gap_ratio_before=1.65, wald_z=z)
+
+    rej, off = cand("rejuvenation", -37.8, 1.61), cand("load_offset", -20.0, 6.0)
+    assert _select([rej, off], {})[0] is off
+    assert rej["undetermined"] and "1.6 standard errors from its null" in rej["note"]
+    assert _select([cand("rejuvenation", -37.8, 1.61)], {}) == (None, None)
+    # at the threshold it may be named; a law (not nested: no Wald z) is judged without it
+    assert not _undetermined(cand("drift", -30.0, NAME_Z)) and not _undetermined(cand("law", -30.0, float("nan")))
+    assert _undetermined(cand("drift", -30.0, 0.0))  # no standard error: nothing determined

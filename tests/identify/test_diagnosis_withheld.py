@@ -70,12 +70,16 @@ def test_withheld_effect_is_named(eid):
 
 def test_two_withheld_effects_are_both_named():
     """Forward selection with two effects at once (issue 5, item 3): a load offset and a
-    puller step off its metadata, each at its realistic magnitude."""
+    puller step off its metadata, each at its realistic magnitude. Measured at 4319be0: both
+    named (load offset in round 1, held-out gap 180 -> 60 nm; step size in round 2, -> 35
+    nm), then rejuvenation as a third, undetermined (dc 7.1 ± 8.0 nm, null 20 nm): the
+    rule of NAME_Z keeps it out; ~40 min."""
     traces = withheld_dataset(["load_offset", "step_size"], conditions=CONDITIONS, base={"A": 0.015})
     res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
     assert sorted(res.effects) == ["load_offset", "step_size"], res.report()
     assert res.verdict == "adequate", res.report()
-    assert res.final["values"]["load_offset"] == pytest.approx(2e-6, rel=0.1)
-    assert res.final["values"]["step_scale"] == pytest.approx(1.05, abs=0.005)
+    # measured: 2.007e-6 (stderr 3e-8 when named) and 1.0498 (stderr 0.0008); within ~3 and ~4 of them
+    assert res.final["values"]["load_offset"] == pytest.approx(2e-6, rel=0.05)
+    assert res.final["values"]["step_scale"] == pytest.approx(1.05, abs=0.003)
     first = next(c for c in res.candidates if c["effect"] == res.effects[0])
     assert res.final["heldout_gap_um"] < first["heldout_gap_before_um"]
