@@ -969,7 +969,7 @@ def _undetermined(c) -> bool:
     """A nested candidate whose own estimate is within NAME_Z standard errors of its null
     (:func:`_wald`; 0 without a standard error): the likelihood ratio and the curvature
     at the estimate disagree, and a name would be a claim its interval does not make.
-    Measured (a load offset and a step size withheld together, at 4319be0's parent): after
+    Measured (a load offset and a step size withheld together, at 5373b08): after
     both were named, rejuvenation gained Δnll 19.9 (p = 2.7e-10) with dc = 7.1 ± 8.0 nm
     (null 20 nm, z = 1.6), and 'closed' 82 % of the held-out gap, 1303 of its 1319 held-out
     likelihood units in one run whose fitted gain was −0.2: the current model's prediction

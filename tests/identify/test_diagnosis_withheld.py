@@ -70,7 +70,7 @@ def test_withheld_effect_is_named(eid):
 
 def test_two_withheld_effects_are_both_named():
     """Forward selection with two effects at once (issue 5, item 3): a load offset and a
-    puller step off its metadata, each at its realistic magnitude. Measured at 4319be0: both
+    puller step off its metadata, each at its realistic magnitude. Measured at 5373b08: both
     named (load offset in round 1, held-out gap 180 -> 60 nm; step size in round 2, -> 35
     nm), then rejuvenation as a third, undetermined (dc 7.1 ± 8.0 nm, null 20 nm): the
     rule of NAME_Z keeps it out; ~40 min."""
