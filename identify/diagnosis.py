@@ -56,7 +56,6 @@ TIE_AIC = 10.0
 MAX_RIVALS = 2  # better-fitting candidates the model mimics that a named one is checked beside (_beside)
 CONFOUNDED_R2 = 0.99
 WALD_Z = 5.0  # a candidate determined this many stderr off its null is not called confounded
-NAME_Z = 1.96  # ... and one named must lie at least this far off it (its 95 % interval excludes the null)
 MIN_CLOSED = 0.3  # a named effect closes at least this share of the gap (see _closes)
 HELDOUT_SHARE = 0.5  # ... and, judged by the likelihood, keeps this share of its gain held out
 EXCESS_FLOOR = 3.0  # the excess χ² a share is taken of is at least this many of its chance σ
@@ -966,17 +965,41 @@ def _converged(c) -> bool:
 
 
 def _undetermined(c) -> bool:
-    """A nested candidate whose own estimate is within NAME_Z standard errors of its null
-    (:func:`_wald`; 0 without a standard error): the likelihood ratio and the curvature
-    at the estimate disagree, and a name would be a claim its interval does not make.
-    Measured (a load offset and a step size withheld together, at 5373b08): after
-    both were named, rejuvenation gained Δnll 19.9 (p = 2.7e-10) with dc = 7.1 ± 8.0 nm
-    (null 20 nm, z = 1.6), and 'closed' 82 % of the held-out gap, 1303 of its 1319 held-out
-    likelihood units in one run whose fitted gain was −0.2: the current model's prediction
-    of that run failed, and any refit mended it. Every effect named in the benchmarks lay
-    at z ≥ 5.7."""
-    z = c.get("wald_z")
-    return bool(z is not None and np.isfinite(z) and z < NAME_Z)
+    """A nested candidate whose own 95 % interval holds its null for every parameter that
+    defines it (or that has no interval at all): the likelihood ratio and the curvature at
+    the estimate disagree, and a name would be a claim its interval does not make. The
+    intervals are the fit's own (on the log scale for log-scaled parameters, such as dc).
+    Measured (a load offset and a step size withheld together, at 5373b08): after both
+    were named, rejuvenation gained Δnll 19.9 (p = 2.7e-10) with dc = 7.1 ± 8.0 nm, 95 %
+    interval 0.8–64 nm around its null of 20 nm, and 'closed' 82 % of the held-out gap,
+    1303 of its 1319 held-out likelihood units in one run whose fitted gain was −0.2: the
+    current model's prediction of that run failed, and any refit mended it. Every effect
+    named in the benchmarks lay at z ≥ 5.7 (:func:`_wald`)."""
+    return _interval_text(c) is not None
+
+
+def _interval_text(c):
+    """Why ``c`` is undetermined (:func:`_undetermined`), or None when it is not."""
+    if not c.get("effect"):
+        return None
+    eff = get_effect(c["effect"])
+    if not eff.nested:
+        return None  # another law: judged by ΔAIC, no null to exclude
+    nulls, est = c.get("nulls") or {}, c.get("estimates") or {}
+    held, missing = [], []
+    for n in eff.defining:
+        if n not in nulls:
+            continue
+        ci = (est.get(n) or {}).get("ci95")
+        if ci is None or not all(np.isfinite(ci)):
+            missing.append(n)
+        elif ci[0] <= float(nulls[n]) <= ci[1]:
+            held.append(f"{n}: {ci[0]:.3g} to {ci[1]:.3g} holds the null {float(nulls[n]):.3g}")
+        else:
+            return None  # determined away from its null in at least one parameter
+    if not held and not missing:
+        return None
+    return "; ".join(held + [f"{n} has no standard error" for n in missing])
 
 
 def _worth_own_sequence(c) -> bool:
@@ -987,7 +1010,8 @@ def _worth_own_sequence(c) -> bool:
     yet predicts the held-out runs little better, the mark of a sequence bent to the
     current model."""
     return bool(_converged(c) and not c.get("closes") and not c.get("at_floor", False)
-                and c.get("explained_share", 0.0) >= MIN_CLOSED and "own_sequence" not in c)
+                and c.get("explained_share", 0.0) >= MIN_CLOSED and "own_sequence" not in c
+                and not _undetermined(c))
 
 
 def _own_text(own: dict) -> str:
@@ -1071,8 +1095,16 @@ def _own_sequence(c, base, current, runs, fopts, prob0, folds, opts, threads, ex
 
 def _try(best, others):
     """``best`` if it can be named; a confounded group if another explains the same; else None."""
+    why = _interval_text(best)
+    if why is not None:  # (before the ties: an undetermined candidate confounds nothing)
+        best["undetermined"] = True
+        best["note"] = (f"significant by the likelihood ratio, but its own 95 % interval does not exclude its null "
+                        f"({why}): not determined, so not named; " + best["estimate_text"])
+        return None, None
     ties = []
     for c in others:
+        if _undetermined(c):
+            continue
         a, b = best["dr"], c["dr"]
         cos = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300))
         if abs(c["delta_aic"] - best["delta_aic"]) < TIE_AIC and cos > SAME_RESIDUALS:
@@ -1088,12 +1120,6 @@ def _try(best, others):
         return None, dict(effects=grp, why=why, closes=bool(closes))
     if not _converged(best):
         best["note"] = f"significant but its refit did not converge ({best['status']}); " + best["estimate_text"]
-        return None, None
-    if _undetermined(best):
-        best["undetermined"] = True
-        best["note"] = (f"significant by the likelihood ratio, but its estimate lies {best['wald_z']:.2g} standard "
-                        f"errors from its null (its 95 % interval holds the null, {NAME_Z:g} needed): not "
-                        "determined, so not named; " + best["estimate_text"])
         return None, None
     a = _set_aside_usable(best)
     if not best.get("closes"):

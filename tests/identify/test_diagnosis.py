@@ -1039,20 +1039,35 @@ def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(mo
 
 def test_a_candidate_whose_interval_holds_its_null_is_not_named():
     """Measured (load offset and step size withheld together, round 3): rejuvenation gained
-    Δnll 19.9 (p = 2.7e-10) with dc = 7.1 ± 8.0 nm against its null of 20 nm (z = 1.6), and
-    its held-out gain lay in one run it did not fit better; it was named a third effect."""
-    from identify.diagnosis import NAME_Z, _select, _undetermined
+    Δnll 19.9 (p = 2.7e-10) with dc = 7.1 ± 8.0 nm, 95 % interval 0.8–64 nm about its null of
+    20 nm, and its held-out gain lay in one run it did not fit better; it was named a third
+    effect. The interval is the fit's own: dc's is on the log scale."""
+    from identify.diagnosis import _select, _try, _undetermined, _worth_own_sequence
 
-    def cand(effect, daic, z):
+    def cand(effect, daic, par, value, ci, null):
         return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
                     status="Solve_Succeeded", closes=True, closed_fraction=0.8, explained_share=0.5,
-                    heldout_delta_nll=100.0, delta_nll=50.0, estimate_text=effect, dr=np.eye(3)[len(effect) % 3],
-                    at_floor=False, heldout_gap_ratio_before=1.65, wald_z=z)
+                    heldout_delta_nll=100.0, delta_nll=50.0, estimate_text=effect, dr=np.ones(3),
+                    at_floor=False, heldout_gap_ratio_before=1.65, nulls={par: null},
+                    estimates={par: dict(value=value, stderr=1.0, ci95=ci)})
 
-    rej, off = cand("rejuvenation", -37.8, 1.61), cand("load_offset", -20.0, 6.0)
-    assert _select([rej, off], {})[0] is off
-    assert rej["undetermined"] and "1.6 standard errors from its null" in rej["note"]
-    assert _select([cand("rejuvenation", -37.8, 1.61)], {}) == (None, None)
-    # at the threshold it may be named; a law (not nested: no Wald z) is judged without it
-    assert not _undetermined(cand("drift", -30.0, NAME_Z)) and not _undetermined(cand("law", -30.0, float("nan")))
-    assert _undetermined(cand("drift", -30.0, 0.0))  # no standard error: nothing determined
+    def rej():
+        return cand("rejuvenation", -37.8, "dc", 7.14e-9, [8.0e-10, 6.37e-8], 2e-8)
+
+    off = cand("load_offset", -20.0, "load_offset", 2e-6, [1.9e-6, 2.1e-6], 0.0)
+    r = rej()
+    assert _select([r, off], {})[0] is off  # (their residual changes are parallel: no tie with r)
+    assert r["undetermined"] and "dc: 8e-10 to 6.37e-08 holds the null 2e-08" in r["note"]
+    assert _select([rej()], {}) == (None, None)
+    # a log-scaled estimate far from its null in its own interval is determined, even with a
+    # relative standard error that a linear z would call 1.6
+    far = cand("rejuvenation", -37.8, "dc", 1e-6, [3.1e-7, 3.2e-6], 2e-8)
+    assert not _undetermined(far) and _try(far, [])[0] is far
+    # no interval at all: nothing determined; a law has no null to exclude
+    assert _undetermined(cand("drift", -30.0, "drift_rate", 1e-9, [float("nan")] * 2, 0.0))
+    assert "no standard error" in (_try(c := cand("drift", -30.0, "drift_rate", 1e-9, None, 0.0), []) and c["note"])
+    assert not _undetermined(dict(effect="aging_logarithmic", estimates={}, nulls={}))
+    # nor is an undetermined one measured on its own mode sequence
+    r = rej()
+    r.update(closes=False, explained_share=0.9)
+    assert not _worth_own_sequence(r)
