@@ -990,7 +990,10 @@ def _interval_text(c):
     for n in eff.defining:
         if n not in nulls:
             continue
-        ci = (est.get(n) or {}).get("ci95")
+        e = est.get(n) or {}
+        ci = e.get("ci95")
+        if ci is None and e.get("stderr") is not None and e.get("value") is not None:
+            ci = [e["value"] - 1.96 * e["stderr"], e["value"] + 1.96 * e["stderr"]]  # (no interval given)
         if ci is None or not all(np.isfinite(ci)):
             missing.append(n)
         elif ci[0] <= float(nulls[n]) <= ci[1]:

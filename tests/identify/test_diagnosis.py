@@ -1065,7 +1065,13 @@ def test_a_candidate_whose_interval_holds_its_null_is_not_named():
     assert not _undetermined(far) and _try(far, [])[0] is far
     # no interval at all: nothing determined; a law has no null to exclude
     assert _undetermined(cand("drift", -30.0, "drift_rate", 1e-9, [float("nan")] * 2, 0.0))
-    assert "no standard error" in (_try(c := cand("drift", -30.0, "drift_rate", 1e-9, None, 0.0), []) and c["note"])
+    c = cand("drift", -30.0, "drift_rate", 1e-9, None, 0.0)
+    c["estimates"]["drift_rate"]["stderr"] = None
+    assert _try(c, []) == (None, None) and "no standard error" in c["note"]
+    # a standard error without an interval: value ± 1.96 of it
+    c = cand("drift", -30.0, "drift_rate", 5e-8, None, 0.0)
+    c["estimates"]["drift_rate"]["stderr"] = 1e-9
+    assert not _undetermined(c) and _undetermined({**c, "estimates": {"drift_rate": dict(value=1.0, stderr=1.0)}})
     assert not _undetermined(dict(effect="aging_logarithmic", estimates={}, nulls={}))
     # nor is an undetermined one measured on its own mode sequence
     r = rej()
