@@ -58,11 +58,12 @@ def case(eid, scale, quick, workers, seed=0):
     base = {"A": 0.015}
     traces = withheld_dataset(ids or eid, mag, seed=seed, conditions=conds, base=base)
     t0 = time.perf_counter()
-    fopts = _baseline_options(eid)
-    if ids:
+    if ids:  # what any of them needs fixed is fixed; free what all of them leave free
         per = [_baseline_options(e) for e in ids]
         fopts = identify.FitOptions(fixed={k: v for o in per for k, v in o.fixed.items()},
                                     free=tuple(n for n in per[0].free if all(n in o.free for o in per)))
+    else:
+        fopts = _baseline_options(eid)
     res = diagnose(traces, fit_options=fopts, options=DiagnosisOptions(workers=workers))
     first = {c["effect"]: c for c in res.candidates}
     truth = first.get(ids[0] if ids else eid, {})
