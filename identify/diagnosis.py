@@ -40,7 +40,7 @@ import numpy as np
 from scipy import stats
 
 from .candidates import GAVE_UP, GIVE_UP_MARGIN, STALLED, CandidateTask, run_candidate
-from .effects import EFFECTS, get_effect
+from .effects import EFFECTS, display, get_effect
 from .events import _jsonable  # NaN/inf -> null, numpy -> Python
 from .fit import FitError, FitOptions, fit
 from .heldout import folds_of
@@ -101,6 +101,12 @@ class DiagnosisOptions:
         inserted a slip in 756 s, the χ² with the within-plateau sums rose 28207 -> 39541
         (the guard now rejects that); drift is now named with its held-out gap within the
         tolerance, where ``"auto"`` leaves the sequence alone.
+    magnitude_check : bool
+        Solve each candidate that is not significant again with its parameter held at
+        its realistic magnitude (:func:`identify.candidates._at_magnitude`): where that
+        fits as well, the data cannot exclude the effect, and the parameters that move to
+        absorb it are reported as its partners (``confounded_with``). One more solve per
+        such candidate, stopped as soon as the answer is known.
     """
 
     effects: Any = "all"
@@ -113,6 +119,7 @@ class DiagnosisOptions:
     max_iter: int = 20
     gap_tolerance: float = 1.5
     resequence: Any = "auto"
+    magnitude_check: bool = True
 
     def __post_init__(self):
         ids = tuple(EFFECTS) if self.effects in ("all", None) else tuple(self.effects)
@@ -247,7 +254,8 @@ class DiagnosisResult:
             baseline=self.baseline.to_json() if self.baseline is not None else None,
             options=dict(effects=list(self.options.effects), folds=self.options.folds, alpha=self.options.alpha,
                          workers=self.options.workers, dask=bool(self.options.dask),
-                         gap_tolerance=self.options.gap_tolerance, resequence=self.options.resequence),
+                         gap_tolerance=self.options.gap_tolerance, resequence=self.options.resequence,
+                         magnitude_check=self.options.magnitude_check),
             timing=self.timing, notes=self.notes,
         )
 
@@ -279,7 +287,8 @@ _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delt
               "heldout_unverified_folds", "heldout_error", "heldout_delta_nll", "explained_share",
               "closes", "gap_sigma_before", "gap_sigma_after", "heldout_gap_sigma_before",
               "heldout_gap_sigma_after", "heldout_by_fold", "heldout_set_aside", "at_floor",
-              "heldout_gap_ratio_before", "beside", "mimicked", "own_sequence", "wald_z", "undetermined")
+              "heldout_gap_ratio_before", "beside", "mimicked", "own_sequence", "wald_z", "undetermined",
+              "at_magnitude")
 
 
 def _cand_json(c: dict) -> dict:
@@ -542,8 +551,19 @@ def _tasks(ids, current, runs, fopts, folds, opts, threads, where_hint):
         vals = {**current["values"], **nulls}
         tasks.append(CandidateTask(effect=eid, law=current["law"], extra=tuple(eff.parameters),
                                    bounds={**added, **dict(eff.bounds)}, starts=starts, nulls=nulls,
+                                   magnitude=_magnitude(eff, nulls) if opts.magnitude_check else None,
                                    **{**common, "values": vals}))
     return tasks, skipped
+
+
+def _magnitude(eff, nulls) -> tuple | None:
+    """(parameter, realistic value) of a one-parameter candidate, for the check of
+    :func:`identify.candidates._at_magnitude`; None where there is none to check (several
+    parameters, as the topography's wavelength and phase, or a magnitude at the null)."""
+    if len(eff.parameters) != 1 or not eff.magnitude or eff.magnitude[0] != eff.parameters[0]:
+        return None
+    name, value = eff.magnitude[0], float(eff.magnitude[1])
+    return None if math.isclose(value, float(nulls[name]), rel_tol=1e-9, abs_tol=0.0) else (name, value)
 
 
 def _starts(eff, nulls, where_hint) -> list:
@@ -660,8 +680,53 @@ def _score(results, base, opts, n_cand, fold_names=None) -> list:
             c["note"] = ("the refit ended worse than the current model (a local solution): no evidence; "
                          if not stopped else f"worse than the current model when its {stopped}: no evidence; "
                          ) + c["estimate_text"]
+        m = c.get("at_magnitude")
+        if m and not c["significant"]:
+            if m.get("absorbed") and np.isfinite(m.get("chi2", float("nan"))):
+                # judged again against the best fit this round found: the current model
+                # re-solved here, or the refit itself (the worker knew only last round's χ²)
+                ref = min(base["chi2"], c["chi2"])
+                m["delta_nll"] = 0.5 * (m["chi2"] - ref)
+                if m["delta_nll"] > m["needed_delta_nll"]:
+                    m.update(absorbed=False, partners=[], lower_bound=False)
+            c["note"] += f" ({_magnitude_text(m)})"
+            if m.get("absorbed") and m.get("partners") and not c["confounded_with"]:
+                # not seen near its null, yet absorbed at its realistic size: the model's
+                # own parameters stand in for it there (candidates._at_magnitude)
+                c["confounded_with"] = list(m["partners"])
         out.append(c)
     return out
+
+
+def _magnitude_text(m: dict) -> str:
+    """What the check at the realistic magnitude (:func:`identify.candidates._at_magnitude`) found."""
+    at = f"{m['parameter']} = {display(m['parameter'], m['value'])}"
+    if m.get("absorbed") is None:
+        return f"not settled at its realistic magnitude {at}: {m.get('error') or m.get('status')}"
+    if not m["absorbed"]:
+        rel = "≥" if m.get("lower_bound") else "="
+        return f"excluded at its realistic magnitude {at}: Δnll {rel} {m['delta_nll']:.1f} there"
+    head = (f"not excluded at its realistic magnitude {at}, which fits as well (Δnll {m['delta_nll']:.1f}, "
+            f"within {m['needed_delta_nll']:.1f})")
+    moves = [x for x in m.get("moved", []) if x["parameter"] in m.get("partners", [])]
+    if not moves:
+        held = ("as the current model stands" if m.get("iterations", 0) <= 1
+                else "with no parameter moving by its standard error")
+        if not m.get("stderr_checked"):
+            return head + f" {held} (the standard errors there could not be computed)"
+        return head + f" {held} and none losing half its information: the data do not see it there"
+    return (head + " with " + ", ".join(_moved_text(x) for x in moves)
+            + ": were it there, these would be off or less certain than stated")
+
+
+def _moved_text(x: dict) -> str:
+    n = x["parameter"]
+    out = f"{n} {display(n, x['value'])} -> {display(n, x['at_magnitude'])} ({x['z']:+.1f} σ"
+    if x.get("undetermined"):
+        out += f"; its standard error {display(n, x['stderr'])} -> undetermined"
+    elif (x.get("wider") or 0.0) >= 1.2:
+        out += f"; its standard error {display(n, x['stderr'])} -> {display(n, x['stderr_at_magnitude'])}"
+    return out + ")"
 
 
 def _heldout_dnll(before: dict, after: dict) -> float:

@@ -334,4 +334,5 @@ def display(name: str, value: float) -> str:
     """A parameter value in its display unit."""
     s = SPECS[name]
     v = s.to_display(value)
-    return f"{v:.4g} {s.shown_unit()}".strip() if math.isfinite(v) else "nan"
+    unit = "" if s.shown_unit == "-" else s.shown_unit
+    return f"{v:.4g} {unit}".strip() if math.isfinite(v) else "nan"
