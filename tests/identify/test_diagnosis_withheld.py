@@ -89,8 +89,9 @@ def test_two_withheld_effects_are_both_named():
     """Forward selection with two effects at once (issue 5, item 3): a load offset and a
     puller step off its metadata, each at its realistic magnitude. Measured at 5373b08: both
     named (load offset in round 1, held-out gap 180 -> 60 nm; step size in round 2, -> 35
-    nm), then rejuvenation as a third, undetermined (dc 7.1 ± 8.0 nm, null 20 nm): the
-    rule of NAME_Z keeps it out; ~40 min."""
+    nm), then rejuvenation as a third, undetermined (dc 7.1 ± 8.0 nm, null 20 nm), which its
+    own interval now keeps out: at ca2ec0c exactly the two, `adequate`, load offset 1.990 µN
+    and step 1.0497, held-out gap 180 -> 35 nm (noise 21 nm); 2488 s beside other jobs."""
     traces = withheld_dataset(["load_offset", "step_size"], conditions=CONDITIONS, base={"A": 0.015})
     res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
     assert sorted(res.effects) == ["load_offset", "step_size"], res.report()
