@@ -14,6 +14,18 @@ Environment:
 
 When no compiler works the interpreted Function is used and a warning is logged once;
 results are the same, only slower.
+
+Where the binary lives. CasADi bakes the absolute path of the shared library it compiled
+into the saved Function; loading (``Function.load``) opens that path, and only when no
+file is there writes the embedded copy to it (re-creating its directory). With
+``jit_temp_suffix`` (the default) every load also creates an empty ``jit_tmp*.c`` next to
+it. Compiled in a temporary directory, each later process therefore re-created that
+directory in /tmp and left a file in it per load. So the library is built under a fixed
+name in the cache directory, ``<tag>_<key>.so`` next to ``<tag>-<key>.casadi``, and the
+C name carries no temporary suffix: a load finds the library in place and writes
+nothing. An entry whose library is missing (or one from before this layout) is compiled
+again. A lock file in the cache directory keeps a compile from replacing a library while
+another process loads it.
 """
 
 from __future__ import annotations
@@ -21,12 +33,19 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import re
 import tempfile
 import threading
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 import casadi as ca
+
+try:
+    import fcntl
+except ImportError:  # no POSIX file locks: concurrent first compiles are not serialised
+    fcntl = None
 
 __all__ = ["compiled", "cache_dir", "jit_enabled"]
 
@@ -61,31 +80,20 @@ def compiled(build: Callable[[dict], ca.Function], tag: str = "f") -> ca.Functio
     with _lock:
         if name in _memory:
             return _memory[name]
-        path = cache_dir() / f"{name}.casadi"
+        folder = cache_dir()
+        path = folder / f"{name}.casadi"
+        stem = re.sub(r"\W", "_", name)  # jit_name must be a C identifier
+        lib = folder / f"{stem}{ca.CasadiMeta.shared_library_suffix()}"  # named in the file
         try:
-            if path.exists():
-                fn = ca.Function.load(str(path))
-            else:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                with tempfile.TemporaryDirectory(prefix="nanofrictor-jit-") as tmp:
-                    # CasADi writes the generated C file relative to the cwd whatever the
-                    # options say; compile from inside the temporary directory
-                    cwd = os.getcwd()
-                    os.chdir(tmp)
-                    try:
-                        fn = build(dict(
-                            jit=True, compiler="shell", jit_serialize="embed", jit_cleanup=False,
-                            jit_options=dict(flags=["-O2"], directory=tmp + os.sep, verbose=False,
-                                             cleanup=False),  # the temporary directory goes
-                        ))
-                    finally:
-                        os.chdir(cwd)
-                    # atomic: concurrent processes may compile the same Function
-                    fd, tmp_path = tempfile.mkstemp(dir=path.parent, suffix=".part")
-                    os.close(fd)
-                    fn.save(tmp_path)
-                    os.replace(tmp_path, path)
-                log.info("compiled %s -> %s", tag, path)
+            folder.mkdir(parents=True, exist_ok=True)
+            with _file_lock(folder, exclusive=False):
+                fn = _load(path, lib)
+            if fn is None:
+                with _file_lock(folder, exclusive=True):
+                    fn = _load(path, lib)  # another process may have compiled it meanwhile
+                    if fn is None:
+                        fn = _compile(build, folder, stem, path, lib)
+                        log.info("compiled %s -> %s", tag, path)
         except Exception as err:  # no compiler, read-only cache, ...: stay interpreted
             _failed = True
             log.warning("CasADi JIT compilation unavailable (%s); using interpreted Functions "
@@ -93,3 +101,71 @@ def compiled(build: Callable[[dict], ca.Function], tag: str = "f") -> ca.Functio
             return plain
         _memory[name] = fn
         return fn
+
+
+@contextmanager
+def _file_lock(folder: Path, exclusive: bool) -> Iterator[None]:
+    """Shared (load) or exclusive (compile) lock on ``folder/.lock``; none where no
+    POSIX locks or the folder is read-only (loading still works there)."""
+    try:
+        fh = open(folder / ".lock", "a") if fcntl is not None else None
+    except OSError:
+        fh = None
+    if fh is None:
+        yield
+        return
+    with fh:
+        fcntl.flock(fh, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _load(path: Path, lib: Path) -> ca.Function | None:
+    """The cached Function, if its entry and the library it names are both in place
+    (else CasADi would write the library itself: see the module docstring)."""
+    if path.exists() and lib.exists():
+        return ca.Function.load(str(path))
+    return None
+
+
+def _compile(build: Callable[[dict], ca.Function], folder: Path, stem: str, path: Path,
+             lib: Path) -> ca.Function:
+    # a library left by an interrupted compile may be mapped by another process: unlink
+    # it rather than let the linker rewrite it in place
+    lib.unlink(missing_ok=True)
+    scratch = [folder / f"{stem}{ext}" for ext in (".c", ca.CasadiMeta.object_file_suffix())]
+    ok = False
+    try:
+        with tempfile.TemporaryDirectory(prefix="nanofrictor-jit-") as tmp:
+            # an integrator JITs its dependencies to a C file in the cwd whatever the
+            # options say (OracleFunction::jit_dependencies): compile from a scratch cwd
+            cwd = os.getcwd()
+            os.chdir(tmp)
+            try:
+                fn = build(dict(
+                    compiler="shell", jit=True, jit_serialize="embed",
+                    jit_name=stem, jit_temp_suffix=False,  # a load creates no jit_tmp*.c
+                    jit_cleanup=False,  # (would warn on every later unload: no such file)
+                    # directory must hold no whitespace (the shell command is not quoted)
+                    jit_options=dict(flags=["-O2"], directory=str(folder) + os.sep, name=stem,
+                                     temp_suffix=False, cleanup=False, verbose=False),
+                ))
+            finally:
+                os.chdir(cwd)
+        # atomic: a reader sees the whole entry or none
+        fd, tmp_path = tempfile.mkstemp(dir=folder, suffix=".part")
+        os.close(fd)
+        try:
+            fn.save(tmp_path)
+            os.replace(tmp_path, path)
+        finally:
+            Path(tmp_path).unlink(missing_ok=True)
+        ok = True
+        return fn
+    finally:
+        for p in scratch:
+            p.unlink(missing_ok=True)
+        if not ok:
+            lib.unlink(missing_ok=True)

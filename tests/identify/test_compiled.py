@@ -1,0 +1,55 @@
+"""identify.compiled: JIT compile, cache on disk, reload; no files left in TMPDIR or cwd."""
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# a plain Function (compiled whole) and an integrator (CasADi JITs its dependencies and
+# writes that C file to the cwd): the two ways identify uses compiled()
+SCRIPT = r"""
+import json, sys
+import casadi as ca
+from identify import compiled as c
+
+x = ca.SX.sym("x")
+f = c.compiled(lambda o: ca.Function("f", [x], [ca.sin(x) * x], o), tag="f")
+i = c.compiled(lambda o: ca.integrator("i", "cvodes", {"x": x, "ode": -x}, 0.0, 1.0,
+                                       {"abstol": 1e-12, "reltol": 1e-12, **o}), tag="i")
+json.dump(dict(failed=c._failed, f=float(f(2.0)), i=float(i(x0=1.0)["xf"])), sys.stdout)
+"""
+
+
+def _run(tmpdir: Path, cache: Path, cwd: Path) -> dict:
+    env = dict(os.environ, TMPDIR=str(tmpdir), NANOFRICTOR_CACHE=str(cache), NANOFRICTOR_JIT="1",
+               PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    out = subprocess.run([sys.executable, "-c", SCRIPT], env=env, cwd=cwd, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="no C compiler")
+def test_compile_and_load_leave_no_files(tmp_path):
+    tmpdir, cache, cwd = (tmp_path / n for n in ("tmp", "cache", "cwd"))
+    for d in (tmpdir, cwd):
+        d.mkdir()
+    first = _run(tmpdir, cache, cwd)  # compiles and saves
+    assert not first["failed"]
+    entries = sorted(p.name for p in cache.rglob("*.casadi"))
+    assert len(entries) == 2
+    cached = sorted(p.name for p in cache.rglob("*"))
+    for _ in range(2):  # later processes load from the cache
+        again = _run(tmpdir, cache, cwd)
+        assert again == first  # same (compiled) results
+    assert sorted(p.name for p in cache.rglob("*")) == cached  # loading writes nothing
+    assert list(tmpdir.iterdir()) == [] and list(cwd.iterdir()) == []
+    assert first["f"] == pytest.approx(2.0 * math.sin(2.0), rel=1e-15)
+    assert first["i"] == pytest.approx(math.exp(-1.0), rel=1e-8)
