@@ -94,6 +94,7 @@ class CandidateTask:
     null_n_eff: int | None = None
     screen_p: float = SCREEN_P
     magnitude: tuple | None = None  # (parameter, realistic value): the check of _at_magnitude
+    regime_runs: list = field(default_factory=list)  # runs left out for their regime (regime_check)
 
 
 def _problem(task: CandidateTask, free: tuple):
@@ -259,6 +260,8 @@ def run_candidate(task: CandidateTask) -> dict:
             values=values, estimates=est, confounding=info, r=r, w=w, ev_M=np.array(prob.ev_M),
             gap=fitted, heldout=heldout, wall_s=time.perf_counter() - t0, error=None, nulls=dict(task.nulls),
         )
+        if task.regime_runs:
+            out["regime"] = _regime(task, values)
         if (task.magnitude and np.isfinite(chi2)
                 and not _could_be_named(task, chi2, prob.n_effective(), prob.n_observations())):
             try:
@@ -271,6 +274,20 @@ def run_candidate(task: CandidateTask) -> dict:
     except Exception as err:  # one failed candidate never sinks the diagnosis
         return dict(effect=task.effect, ok=False, status=f"failed: {type(err).__name__}: {err}", error=str(err),
                     wall_s=time.perf_counter() - t0)
+
+
+def _regime(task: CandidateTask, values: dict) -> dict:
+    """The runs left out for their regime, simulated at the refit's values
+    (:func:`identify.regime_check.regime_check`), JSON-able; its error instead if the
+    check itself fails (the refit's numbers stand)."""
+    from .laws import get_law
+    from .model import Model
+    from .regime_check import regime_check
+
+    try:
+        return regime_check(Model(get_law(task.law)), values, task.regime_runs).to_json()
+    except Exception as err:
+        return dict(error=f"{type(err).__name__}: {err}")
 
 
 def _chi2_by_fold(r: np.ndarray, row_run: np.ndarray, folds) -> list:

@@ -44,7 +44,7 @@ from .effects import EFFECTS, display, get_effect
 from .events import _jsonable  # NaN/inf -> null, numpy -> Python
 from .fit import FitError, FitOptions, fit
 from .heldout import folds_of
-from .where import where
+from .where import where, with_regime
 
 __all__ = ["DiagnosisOptions", "DiagnosisResult", "diagnose", "make_executor"]
 
@@ -288,7 +288,7 @@ _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delt
               "closes", "gap_sigma_before", "gap_sigma_after", "heldout_gap_sigma_before",
               "heldout_gap_sigma_after", "heldout_by_fold", "heldout_set_aside", "at_floor",
               "heldout_gap_ratio_before", "beside", "mimicked", "own_sequence", "wald_z", "undetermined",
-              "at_magnitude")
+              "at_magnitude", "regime", "regime_fixed", "regime_broken")
 
 
 def _cand_json(c: dict) -> dict:
@@ -359,24 +359,30 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
     fopts = prob.opts
     runs = prob.runs
     folds = folds_of(len(runs), opts.folds, seed=opts.seed)
-    where0 = where(prob, w)
     from .params import parameter_set
 
     # every parameter any candidate may free (another law's too), at the baseline's values
     values0 = {**parameter_set(baseline.coating), **prob.values, **baseline.values}
+    # the runs the fit left out for their regime are evidence too (identify.regime_check)
+    regime_runs = list(getattr(baseline, "regime_runs", None) or [])
+    if regime_runs:
+        say(f"simulating the {len(regime_runs)} run(s) left out for their regime under the baseline")
+    notes: list = []
+    where0 = with_regime(where(prob, w), _regime_check(prob.law.name, values0, regime_runs, notes))
     r0 = prob.residuals(w)
     current = dict(values=values0, free=tuple(prob.theta.names), law=prob.law.name,
                    w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta,
                    chi2=float(r0 @ r0) + prob.chi2_constant(), n_eff=prob.n_effective())
     own, closer = (executor, None) if executor is not None else make_executor(opts.workers, opts.dask)
     threads = 1 if (opts.workers > 1 or opts.dask) else max(int(fopts.threads), 1)
-    rounds, effects, confounded, notes = [], [], [], []
+    rounds, effects, confounded = [], [], []
     final_res = None
     n_refits = 0
     try:
         remaining = list(opts.effects)
         while True:
-            tasks, skipped = _tasks(remaining, current, runs, fopts, folds, opts, threads, where_hint=where0)
+            tasks, skipped = _tasks(remaining, current, runs, fopts, folds, opts, threads, where_hint=where0,
+                                    regime_runs=regime_runs)
             say(f"round {len(rounds) + 1}: {len(tasks) - 1} candidate refit(s) and the current model, "
                 f"{len(folds)} held-out fold(s) each")
             results = []
@@ -417,6 +423,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
                                                 threads, own, say)
             chosen, groups = _choose(scored, base, lambda c: _beside(c, scored, base, current, runs, fopts, opts,
                                                                      threads, own, where0, n_cand, say), retry)
+            _regime_notes(scored, base)
             confounded.extend(groups)
             n_refits += sum(len(c.get("beside", [])) for c in scored)  # each check is a refit
             # each measurement on a candidate's own sequence, and of the current model's control
@@ -460,7 +467,11 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
         if closer is not None:
             closer()
     final_prob, final_w = _rebuild(current, runs, fopts, prob)
-    where_final = where(final_prob, final_w) if effects else where0
+    regime_final = _regime_check(current["law"], current["values"], regime_runs, notes)
+    where_final = with_regime(where(final_prob, final_w) if effects else where0, regime_final)
+    # runs the final model puts in another regime than their data: whatever the held-out
+    # gap of the runs it could fit, model and data part there (never `adequate`)
+    regime_left = bool(regime_final is not None and regime_final.mismatched)
     n_feat = max(len(where_final), 1)
     misfit_left = [m for m in where_final if m.p_value < opts.alpha / n_feat]
     # significant candidates that would close a real part of the gap but could not be
@@ -476,7 +487,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
     ratio = _gap_ratio(final_res) if final_res and final_res.get("ok") else float("nan")
     within = _at_noise(final_res, opts) if final_res and final_res.get("ok") else False
     # within the tolerance there is no gap left for an unnamed candidate to explain
-    if within or (not misfit_left and not still and not grouped):
+    if (within or (not misfit_left and not still and not grouped)) and not regime_left:
         verdict = "adequate"
         if misfit_left or still:
             notes.append(f"adequate: the held-out gap is {ratio:.2f}× the noise floor (tolerance "
@@ -495,6 +506,8 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
         if grouped:
             notes.append("the gap is closed by candidates the data cannot tell apart: "
                          + "; ".join(" | ".join(g["effects"]) for g in confounded))
+        if regime_left:
+            notes.append(_regime_left_note(regime_final, rounds, effects))
     ok = bool(final_res and final_res.get("ok"))
     final = dict(law=current["law"], free=list(current["free"]),
                  values={n: current["values"][n] for n in current["free"]},
@@ -515,16 +528,79 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
     )
 
 
+def _regime_check(law: str, values: dict, regime_runs: list, notes: list):
+    """:func:`identify.regime_check.regime_check` under ``law`` at ``values``; None (and a
+    note) if the check itself fails: the diagnosis goes on without it."""
+    from .laws import get_law
+    from .model import Model
+    from .regime_check import regime_check
+
+    if not regime_runs:
+        return None
+    try:
+        rc = regime_check(Model(get_law(law)), values, regime_runs)
+    except Exception as err:
+        rc, why = None, f"{type(err).__name__}: {err}"
+    else:
+        why = "; ".join(rc.errors) if not rc.df else None
+    if why:  # (with_regime leaves out a check of no run: say why here)
+        txt = f"the runs left out for their regime could not be simulated: {why}"
+        if txt not in notes:
+            notes.append(txt)
+    return rc
+
+
+def _regime_notes(scored: list, base: dict) -> None:
+    """Say of each candidate whether it puts the left-out runs the current model misfits
+    for their regime (``base["regime"]``) in the data's regime."""
+    if "mismatched" not in (base.get("regime") or {}):
+        return
+    bad = set(base["regime"]["mismatched"])
+    for c in scored:
+        rc = c.get("regime") or {}
+        if not c.get("ok") or "mismatched" not in rc:
+            continue
+        fixed, broken = sorted(bad - set(rc["mismatched"])), sorted(set(rc["mismatched"]) - bad)
+        c["regime_fixed"], c["regime_broken"] = fixed, broken
+        said = []
+        if fixed:
+            said.append(f"under it {len(fixed)} of the {len(bad)} run(s) left out for their regime that the current "
+                        "model stick-slips lose their resolvable slips, as in the data")
+        elif bad:
+            said.append(f"it leaves the {len(bad)} run(s) left out for their regime stick-slipping, unlike the data")
+        if broken:  # evidence against it: the verdict's regime test will say so if it is named
+            said.append(f"it stick-slips where the data and the current model do not: {', '.join(broken)}")
+        if said:
+            c["note"] = "; ".join(([c["note"]] if c.get("note") else []) + said)
+
+
+def _regime_left_note(check, rounds, effects) -> str:
+    """The note of a final model that still puts left-out runs in another regime, with the
+    candidates of the last round that had any, not named, under which none of them does."""
+    last = next((r for r in reversed(rounds) if any(c.get("effect") for c in r)), [])
+    fixers = [c["effect"] for c in last if c.get("effect") and c.get("effect") not in effects and c.get("ok")
+              and "mismatched" in (c.get("regime") or {})
+              and not set(c["regime"]["mismatched"]) & set(check.mismatched)]
+    txt = "regime: " + check.text()
+    if fixers:
+        one = len(fixers) == 1
+        txt += (f"; under {', '.join(fixers)}, at {'its' if one else 'their'} refitted values, they do not stick-slip, "
+                f"as in the data, but {'it' if one else 'none'} could {'not ' if one else ''}be named on the runs "
+                f"fitted (see {'its' if one else 'their'} note{'' if one else 's'})")
+    return txt
+
+
 def _rank(c):
     return (0 if c.get("ok") else 1, c.get("delta_aic", math.inf) if c.get("ok") else 0)
 
 
-def _tasks(ids, current, runs, fopts, folds, opts, threads, where_hint):
+def _tasks(ids, current, runs, fopts, folds, opts, threads, where_hint, regime_runs=()):
     """Tasks for the current model itself and every applicable candidate."""
     tail = np.asarray(current["w"])[current["n_theta"]:]
     common = dict(runs=runs, values=current["values"], free=current["free"], w_tail=tail, ev_M=current["ev_M"],
                   options=fopts, folds=folds, max_iter=opts.max_iter, threads=threads,
-                  null_chi2=current.get("chi2"), null_n_eff=current.get("n_eff"), screen_p=opts.alpha)
+                  null_chi2=current.get("chi2"), null_n_eff=current.get("n_eff"), screen_p=opts.alpha,
+                  regime_runs=list(regime_runs))
     added = dict(current.get("bounds", {}))  # bounds of the effects already added
     tasks = [CandidateTask(effect=None, law=current["law"], bounds=added, **common)]
     skipped = []

@@ -188,6 +188,37 @@ class FitOptions:
 
 
 # ----------------------------------------------------------------------------- data
+def _check_left_out(result, model, prob, say) -> None:
+    """The runs left out for their regime, simulated at the fitted values: their entry in
+    ``result.runs`` gains ``model_regime`` and ``model_slip_um``, and their reason says
+    when the fitted model stick-slips where the camera saw no saw-tooth (a gap between
+    model and data that :func:`identify.diagnose` weighs). The fit stands if this fails."""
+    from .regime_check import regime_check
+
+    if not result.regime_runs:
+        return
+    try:
+        rc = regime_check(model, {**prob.values, **result.values}, result.regime_runs)
+    except Exception as err:  # a check of runs not fitted never sinks the fit
+        say(f"the runs left out for their regime could not be simulated at the fitted values: {err}")
+        return
+    by_name = {r["name"]: r for r in rc.runs}
+    bad = set(rc.mismatched)
+    for entry in result.runs:
+        rec = by_name.get(entry["name"])
+        if entry["used"] or rec is None:
+            continue
+        entry.update(model_regime=rec["model_regime"], model_slip_um=rec["model_slip_um"])
+        if entry["name"] in bad:
+            entry["reason"] += (
+                "; at the fitted values the model, sampled and read as the data were, stick-slips there "
+                f"with {rec['model_slip_um']:.2f} µm slips (the data: {rec['data_slip_um']:.2f} µm, not "
+                "resolvable): model and data part here (identify diagnose weighs it)")
+    if bad:
+        say(f"warning: the fitted model stick-slips in {len(bad)} run(s) left out without resolvable slips: "
+            + ", ".join(sorted(bad)))
+
+
 def prepare_runs(items, *, coating: str | None = None, noise_m: float | None = None):
     """Traces, RunEvents or paths -> (usable RunData list, excluded [(name, reason)], coating).
 
@@ -431,12 +462,22 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     law = get_law(opts.law)
     model = Model(law)
     preset = parameter_set(coating, {n: v for n, v in opts.fixed.items()})
+    from .regime_check import RegimeRun, steps_of
+
     run_data = []
+    regime_runs = []  # left out for their regime: still evidence for the diagnosis
+
+    def keep_for_regime(rd):
+        try:
+            regime_runs.append(RegimeRun.of(rd))
+        except Exception as err:  # (odd metadata): the run is left out all the same
+            say(f"warning: {rd.name}: cannot be checked against the model later: {err}")
     for ev in runs_ev:
         rd = _run_data(ev)
         if rd.kind == "creep":
             if not opts.use_creep_runs:
                 excluded.append((rd.name, f"no resolvable slips (data regime {ev.regime})"))
+                keep_for_regime(rd)
                 continue
         if rd.kind == "events" and len(rd.trigger_steps) < 1:
             excluded.append((rd.name, "no slip detected"))
@@ -456,16 +497,17 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
                 kept.append(r)
                 continue
             try:
-                n_steps = max(50, int(round(r.n_frames / max(r.events.trace.frame_rate / r.fp, 1))))
-                sim = simulate_run(model, values, RunConditions(r.k, r.Nb, r.fp, n_steps),
+                sim = simulate_run(model, values, RunConditions(r.k, r.Nb, r.fp, steps_of(r)),
                                    SimulationOptions(record=False))
                 if sim.regime == "creep":
                     kept.append(r)
                 else:
                     excluded.append((r.name, f"no resolvable slips and the model predicts {sim.regime}, "
                                              "not steady creep"))
+                    keep_for_regime(r)
             except Exception as err:
                 excluded.append((r.name, f"no resolvable slips; creep check failed: {err}"))
+                keep_for_regime(r)
         run_data = kept
     if not run_data:
         raise FitError("no run could be used: " + "; ".join(f"{n}: {why}" for n, why in excluded) if excluded
@@ -541,6 +583,8 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,
                           time.perf_counter() - wall0)
     result.timing["sequence_s"] = float(t_seq)
+    result.regime_runs = regime_runs
+    _check_left_out(result, model, prob, say)
     # arcs the integrator could not finish at any tolerance: their trial points were
     # rejected, which a solve that stalls or fails may owe to them
     n_failed = prob.arcs.n_failed - failed0

@@ -91,6 +91,9 @@ class FitResult:
     problem: Any = field(repr=False, default=None)
     w: np.ndarray | None = field(repr=False, default=None)
     profiles: dict = field(default_factory=dict)
+    # runs left out for their regime (identify.regime_check.RegimeRun): the diagnosis
+    # checks the fitted model against them
+    regime_runs: list = field(repr=False, default_factory=list)
 
     # ---------------------------------------------------------------- access
     @property

@@ -341,11 +341,14 @@ class SimulationResult:
         offset_m: float | None = None,
         name: str = "run",
         metadata: Mapping[str, Any] | None = None,
+        times_s: np.ndarray | None = None,
     ):
         """The camera's trace of this run (:class:`identify.traces.Trace`).
 
         Frames are at ``t_j = (j + frame_phase)/frame_rate`` (default 2 frames per step
-        period, each in the middle of its half period). Measurement effects default to
+        period, each in the middle of its half period), or at ``times_s`` (s, the run's
+        clock: steps at n/fp; times at or past the run's end are dropped), e.g. a
+        recorded trace's own frames. Measurement effects default to
         the run's parameters (``exposure``, ``drift_rate``, ``e_offset``). Gaussian noise
         of ``noise_nm`` (standard deviation, nm) is drawn from ``seed``.
         """
@@ -359,9 +362,17 @@ class SimulationResult:
             raise ParameterError(f"frame_phase = {frame_phase!r}: must lie in [0, 1)")
         if noise_nm < 0 or not math.isfinite(noise_nm):
             raise ParameterError(f"noise_nm = {noise_nm!r}: must be >= 0")
-        n = int(math.floor(c.end_time * fr - frame_phase)) + 1
-        t = (np.arange(n) + frame_phase) / fr
-        t = t[t < c.end_time]
+        if times_s is not None:
+            t = np.asarray(times_s, float).ravel()
+            if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+                raise ParameterError("times_s: must be finite and strictly increasing")
+            t = t[(t >= 0) & (t < c.end_time)]
+            if t.size < 2:
+                raise ParameterError(f"times_s: fewer than 2 frames within the run (0 to {c.end_time:.6g} s)")
+        else:
+            n = int(math.floor(c.end_time * fr - frame_phase)) + 1
+            t = (np.arange(n) + frame_phase) / fr
+            t = t[t < c.end_time]
         P = self.parameters
         exposure = P.get("exposure", 0.0) if exposure_s is None else exposure_s
         drift = P.get("drift_rate", 0.0) if drift_rate_m_per_s is None else drift_rate_m_per_s

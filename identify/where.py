@@ -24,6 +24,9 @@ Tests (features as in :mod:`identify.features`):
                              per-run means removed; p from the largest peak, Bonferroni
                              over the independent wavelengths)
 ``creep_level``              χ² of the creep runs' steady levels
+``regime``                   the runs left out for their regime, simulated under the model:
+                             its saw-tooth against theirs (:mod:`identify.regime_check`;
+                             added by the diagnosis, :func:`with_regime`)
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from scipy import stats
 from .features import feature_values
 from .model import LENGTH_UNIT
 
-__all__ = ["Misfit", "where", "misfit_sigma", "position_ripple"]
+__all__ = ["Misfit", "where", "misfit_sigma", "position_ripple", "with_regime"]
 
 MAX_SIGMA = 40.0
 
@@ -284,6 +287,20 @@ def where(prob, w: np.ndarray, r: np.ndarray | None = None) -> list:
         out.append(_chi2(z, len(z), "creep_level",
                          f"{cr.value_um[worst] * 1e3:+.0f} nm ({z[worst]:+.1f} σ) in {name(cr.run[worst])}"))
     out.sort(key=lambda m: -(m.misfit_sigma if np.isfinite(m.misfit_sigma) else -1))
+    return out
+
+
+def with_regime(misfits: list, check) -> list:
+    """``misfits`` with the ``regime`` feature of a :class:`identify.regime_check.RegimeCheck`
+    (the runs the fit left out for their regime, under the model) ranked in; unchanged
+    when there is no check or no run could be simulated."""
+    if check is None or not check.df:
+        return list(misfits)
+    m = Misfit("regime", misfit_sigma(check.p_value), check.p_value, check.chi2,
+               f"χ²/df = {check.chi2 / check.df:.2f} (df {check.df}); {check.text()}",
+               extra=dict(mismatched=check.mismatched, runs=check.runs))
+    out = [x for x in misfits if x.feature != "regime"] + [m]
+    out.sort(key=lambda x: -(x.misfit_sigma if np.isfinite(x.misfit_sigma) else -1))
     return out
 
 
