@@ -390,6 +390,26 @@ def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds, stat
     assert len(sol["rounds"]) == len(done) and sol["rounds"][0] == (script[0][0], script[0][1])
 
 
+def test_a_refit_already_past_the_naming_screen_gets_more_rounds():
+    """Measured (rejuvenation withheld at dc = 0.1 µm): still gaining after three rounds,
+    p = 1e-68, and so not named; with more iterations it converged and was named."""
+    from identify.candidates import EXTRA_ROUNDS, EXTRA_ROUNDS_NAMEABLE, _solve_on
+
+    gaining = [(MAX_IT, 1000.0 - 50.0 * i) for i in range(1, 12)]
+    for nameable, rounds in ((None, EXTRA_ROUNDS + 1), (lambda f: False, EXTRA_ROUNDS + 1),
+                             (lambda f: True, EXTRA_ROUNDS_NAMEABLE + 1),
+                             # judged at each round's end (½χ² 950, 900, 850, ...): past the
+                             # screen by the end of the ordinary rounds, or not
+                             (lambda f: f <= 850.0, EXTRA_ROUNDS_NAMEABLE + 1),
+                             (lambda f: f <= 800.0, EXTRA_ROUNDS + 1)):
+        prob = _FakeProblem(gaining)
+        sol = _solve_on(prob, 0, 1000.0, nameable)
+        assert len(prob.starts) == rounds and sol["status"] == MAX_IT
+    assert EXTRA_ROUNDS_NAMEABLE > EXTRA_ROUNDS
+    prob = _FakeProblem([(MAX_IT, 900.0), (MAX_IT, 800.0), ("Solve_Succeeded", 700.0)] + gaining)
+    assert _solve_on(prob, 0, 1000.0, lambda f: True)["status"] == "Solve_Succeeded" and len(prob.starts) == 3
+
+
 @pytest.mark.parametrize("status, named", [("Solve_Succeeded", True), ("Stalled_Within_Tolerance", True),
                                            (MAX_IT, False)])
 def test_a_stalled_refit_can_be_named_an_unconverged_one_cannot(status, named):
@@ -508,9 +528,9 @@ def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, mo
     solved, ends = [], []
     real = cand._solve_on
 
-    def spy(p, w0, f0):
+    def spy(p, w0, f0, nameable=None):
         solved.append(float(w0[list(p.theta.names).index("topo_wavelength")]))
-        out = real(p, w0, f0)
+        out = real(p, w0, f0, nameable)
         ends.append(out["f"])
         return out
 
