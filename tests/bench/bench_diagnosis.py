@@ -1,7 +1,7 @@
 """Diagnosis benchmark: confusion table over the effect library, detection limits, speed.
 
     python tests/bench/bench_diagnosis.py confusion [--effects a,b,c+d] [--scales 1,0.3,0.1]
-        [--quick] [--workers 2] [--out bench_diagnosis.jsonl]
+        [--quick] [--workers 2] [--out bench_diagnosis.jsonl] [--progress]
     python tests/bench/bench_diagnosis.py speed [--workers 2]
 
 ``confusion``: for each effect (and "none", "outside"), simulate the withheld-effect data
@@ -49,7 +49,7 @@ def _magnitude(eid, scale):
     return eff.scaled_magnitude(scale) if eff.nested and eff.magnitude else None
 
 
-def case(eid, scale, quick, workers, seed=0):
+def case(eid, scale, quick, workers, seed=0, progress=None):
     """One data set: ``eid`` an effect id, None, "outside", or ids joined by "+" (every one
     of them on at once, each at ``scale``; the baseline fixes what any of them needs)."""
     ids = eid.split("+") if eid and "+" in eid else None
@@ -64,7 +64,7 @@ def case(eid, scale, quick, workers, seed=0):
                                     free=tuple(n for n in per[0].free if all(n in o.free for o in per)))
     else:
         fopts = _baseline_options(eid)
-    res = diagnose(traces, fit_options=fopts, options=DiagnosisOptions(workers=workers))
+    res = diagnose(traces, fit_options=fopts, options=DiagnosisOptions(workers=workers), progress=progress)
     first = {c["effect"]: c for c in res.candidates}
     truth = first.get(ids[0] if ids else eid, {})
     extra = {}
@@ -94,6 +94,11 @@ def case(eid, scale, quick, workers, seed=0):
                 wall_s=time.perf_counter() - t0)
 
 
+def _stamped(msg):
+    # a case takes minutes to an hour: where it is, and since when, without a debugger
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
 def confusion(args):
     ids = args.effects.split(",") if args.effects else ["none", "outside"] + list(EFFECTS)
     scales = [float(s) for s in args.scales.split(",")]
@@ -102,7 +107,8 @@ def confusion(args):
         nested = eid not in ("none", "outside") and all(get_effect(e).nested for e in eid.split("+"))
         for sc in (scales if nested else [1.0]):
             try:
-                row = case(None if eid == "none" else eid, sc, args.quick, args.workers)
+                row = case(None if eid == "none" else eid, sc, args.quick, args.workers,
+                           progress=_stamped if args.progress else None)
             except Exception as err:  # one failed case never sinks the table
                 row = dict(effect=eid, scale=sc, error=f"{type(err).__name__}: {err}")
             with out.open("a") as f:
@@ -146,6 +152,7 @@ def main(argv=None):
     c.add_argument("--quick", action="store_true", help="15 µm runs instead of 30 µm")
     c.add_argument("--workers", type=int, default=2)
     c.add_argument("--out", default="bench_diagnosis.jsonl")
+    c.add_argument("--progress", action="store_true", help="the diagnosis's progress on stderr, time-stamped")
     c.set_defaults(func=confusion)
     s = sub.add_parser("speed")
     s.add_argument("--workers", type=int, default=2)
