@@ -437,7 +437,11 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
     # judged only at a point the solver vouches for: converged, or stopped by the rule
     # above (which it asks only within GIVE_UP_FEAS of continuity); else not settled
     settled = (bool(sol.get("success")) or sol["status"] == GAVE_UP) and np.isfinite(dnll)
-    absorbed = bool(2 * dnll <= need) if settled else None
+    # held at the magnitude and fitting *better* than its own refit by more than the
+    # quantile: no parameter of the model stands in for it there; the refit ended in a
+    # local solution near its null (a start the solve never saw), which the report says
+    better = bool(settled and 2 * dnll < -need)
+    absorbed = bool(2 * dnll <= need) and not better if settled else None
     got = dict(zip(names, (float(v) for v in prob.theta.from_scaled(sol["w"][: prob.n_theta]))))
     se_m = {}
     if absorbed:
@@ -472,7 +476,7 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
     moved.sort(key=lambda m: (not m["partner"], -weight(m), m["parameter"]))
     partners = [m["parameter"] for m in moved if m["partner"]]
     return dict(parameter=name, value=float(value), chi2=float(chi2_m), delta_nll=float(dnll),
-                needed_delta_nll=0.5 * need, absorbed=absorbed, partners=partners,
+                needed_delta_nll=0.5 * need, absorbed=absorbed, better=better, partners=partners,
                 moved=moved[:max(4, len(partners))], stderr_checked=bool(se_m), status=sol["status"],
                 iterations=int(sol["iterations"]), lower_bound=bool(sol["status"] == GAVE_UP and absorbed is False))
 

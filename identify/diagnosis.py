@@ -39,7 +39,7 @@ from typing import Any, Callable
 import numpy as np
 from scipy import stats
 
-from .candidates import GAVE_UP, GIVE_UP_MARGIN, STALLED, CandidateTask, run_candidate
+from .candidates import GAVE_UP, GIVE_UP_MARGIN, MAGNITUDE_MOVED_Z, STALLED, CandidateTask, run_candidate
 from .effects import EFFECTS, display, get_effect
 from .events import _jsonable  # NaN/inf -> null, numpy -> Python
 from .fit import FitError, FitOptions, fit
@@ -758,13 +758,23 @@ def _score(results, base, opts, n_cand, fold_names=None) -> list:
                          ) + c["estimate_text"]
         m = c.get("at_magnitude")
         if m and not c["significant"]:
-            if m.get("absorbed") and np.isfinite(m.get("chi2", float("nan"))):
+            if (m.get("absorbed") or m.get("better")) and np.isfinite(m.get("chi2", float("nan"))):
                 # judged again against the best fit this round found: the current model
                 # re-solved here, or the refit itself (the worker knew only last round's χ²)
                 ref = min(base["chi2"], c["chi2"])
                 m["delta_nll"] = 0.5 * (m["chi2"] - ref)
                 if m["delta_nll"] > m["needed_delta_nll"]:
-                    m.update(absorbed=False, partners=[], lower_bound=False)
+                    m.update(absorbed=False, better=False, partners=[], lower_bound=False)
+                elif m["delta_nll"] < -m["needed_delta_nll"]:
+                    m.update(absorbed=False, better=True, partners=[])
+                elif m.get("better"):
+                    # better only against the worker's reference: within the quantile of
+                    # this round's best, so the check's own verdict (moves only: the
+                    # standard errors there were not computed for a better fit)
+                    for x in m.get("moved", []):
+                        x["partner"] = bool(abs(x["z"]) >= MAGNITUDE_MOVED_Z)
+                    m.update(absorbed=True, better=False,
+                             partners=[x["parameter"] for x in m.get("moved", []) if x["partner"]])
             c["note"] += f" ({_magnitude_text(m)})"
             if m.get("absorbed") and m.get("partners") and not c["confounded_with"]:
                 # not seen near its null, yet absorbed at its realistic size: the model's
@@ -779,6 +789,10 @@ def _magnitude_text(m: dict) -> str:
     at = f"{m['parameter']} = {display(m['parameter'], m['value'])}"
     if m.get("absorbed") is None:
         return f"not settled at its realistic magnitude {at}: {m.get('error') or m.get('status')}"
+    if m.get("better"):
+        return (f"fits better at its realistic magnitude {at} than its refit (Δnll {m['delta_nll']:.1f}, beyond "
+                f"−{m['needed_delta_nll']:.1f}): the refit ended in a local solution near its null, so there is "
+                "evidence for it but no estimate: not named, and not shown absent either")
     if not m["absorbed"]:
         rel = "≥" if m.get("lower_bound") else "="
         return f"excluded at its realistic magnitude {at}: Δnll {rel} {m['delta_nll']:.1f} there"

@@ -1157,6 +1157,26 @@ def test_a_candidate_absorbed_at_its_realistic_magnitude_is_reported_confounded_
     (c,) = _score([base, _not_significant("damping", est, dict(absorbed, absorbed=None, error="boom"))], base,
                   DiagnosisOptions(), 1)
     assert c["confounded_with"] == [] and "not settled" in c["note"] and "boom" in c["note"]
+    # fitting better held at the magnitude than its own refit: the refit is local, no
+    # parameter stands in for it: not confounded, not excluded, said so
+    better = dict(absorbed, chi2=10538.45 - 40.0, delta_nll=-20.0, absorbed=False, better=True, partners=[])
+    (c,) = _score([base, _not_significant("damping", est, better)], base, DiagnosisOptions(), 1)
+    assert c["confounded_with"] == [] and c["at_magnitude"]["better"] and not c["at_magnitude"]["absorbed"]
+    assert "fits better at its realistic magnitude c_extra = 20 µN s/m than its refit (Δnll -20.0" in c["note"]
+    assert "local solution" in c["note"] and "excluded" not in c["note"].replace("not shown absent", "")
+    # an absorbed record that this round's best puts beyond the quantile below: better
+    (c,) = _score([base, _not_significant("damping", est, dict(absorbed, chi2=10538.45 - 9.0))], base,
+                  DiagnosisOptions(), 1)
+    assert c["at_magnitude"]["better"] and c["confounded_with"] == []
+    # better only against the worker's reference, within the quantile of this round's best:
+    # judged as absorbed, its partners from the moves alone
+    lower = _not_significant(None, est, None)
+    lower["chi2"] -= 30.0
+    (c,) = _score([lower, _not_significant("damping", est, dict(better, chi2=lower["chi2"] - 2.0))], lower,
+                  DiagnosisOptions(), 1)
+    m = c["at_magnitude"]
+    assert m["absorbed"] and not m["better"] and m["delta_nll"] == pytest.approx(-1.0)
+    assert m["partners"] == ["A", "mu_min"] and c["confounded_with"] == ["A", "mu_min"]
     from identify.diagnosis import _CAND_KEYS
 
     assert "at_magnitude" in _CAND_KEYS

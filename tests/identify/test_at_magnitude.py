@@ -1,0 +1,96 @@
+"""The check of a candidate held at its realistic magnitude (candidates._at_magnitude),
+on a stand-in problem whose χ² there is set by the test: fits as well (absorbed, with the
+parameters it moves as partners), excluded, or better than the refit itself."""
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from identify.candidates import CandidateTask, _at_magnitude
+from identify.nlp import ThetaMap
+
+NEED = float(stats.chi2.isf(0.01, 1))  # 6.63: the χ²₁ quantile at the screen's p
+_TM = ThetaMap.build(("A",), {})
+TO_0018 = float(_TM.to_scaled({"A": 0.018})[0] - _TM.to_scaled({"A": 0.0236})[0])  # A 0.0236 -> 0.018
+
+
+@dataclass
+class _Opts:
+    max_iter: int = 30
+
+
+class _Problem:
+    """χ² at the magnitude = ``chi2_at``; the solve moves A by ``shift`` (scaled units)."""
+
+    E = 0
+
+    def __init__(self, chi2_at: float, shift: float = 0.0, status: str = "Solve_Succeeded"):
+        self.theta = ThetaMap.build(("A", "c_extra"), {})
+        self.n_theta = 2
+        self.chi2_at, self.shift, self.status = chi2_at, shift, status
+        self.give_up, self.opts = None, _Opts()
+        self.fixed_seen = None
+
+    def chi2_constant(self):
+        return 0.0
+
+    def solve(self, w0, fixed):
+        self.fixed_seen = dict(fixed)
+        w = np.array(w0, float)
+        w[0] += self.shift
+        return dict(f=0.5 * self.chi2_at, w=w, status=self.status, success=self.status == "Solve_Succeeded",
+                    iterations=3)
+
+    def covariance(self, w, fixed_idx, robust):
+        return np.diag([1e-4, 0.0])
+
+
+def _check(chi2_at, shift=0.0, refit_chi2=1000.0, status="Solve_Succeeded"):
+    prob = _Problem(chi2_at, shift, status)
+    task = CandidateTask(effect="damping", runs=[], law="exponential", values={}, free=("A",),
+                         extra=("c_extra",), null_chi2=1001.0, magnitude=("c_extra", 2e-5))
+    w = prob.theta.to_scaled({"A": 0.0236, "c_extra": 0.0})
+    est = {"A": dict(value=0.0236, stderr=0.0035)}
+    out = _at_magnitude(task, prob, w, refit_chi2, est)
+    return out, prob
+
+
+def test_the_magnitude_is_held_where_the_effect_says():
+    out, prob = _check(1000.5)
+    (i, target), = prob.fixed_seen.items()
+    assert i == 1 and prob.theta.from_scaled(np.r_[0.0, target])[1] == pytest.approx(2e-5)
+    assert out["parameter"] == "c_extra" and out["value"] == 2e-5
+    assert out["needed_delta_nll"] == pytest.approx(NEED / 2)
+
+
+def test_fits_as_well_there_absorbed_with_the_parameters_it_moves():
+    out, _ = _check(1000.0 + NEED - 0.1, shift=TO_0018)
+    assert out["absorbed"] is True and out["better"] is False
+    assert out["delta_nll"] == pytest.approx((NEED - 0.1) / 2)
+    (a,) = out["moved"]
+    assert a["at_magnitude"] == pytest.approx(0.018) and a["z"] == pytest.approx((0.018 - 0.0236) / 0.0035)
+    assert out["partners"] == ["A"] and out["stderr_checked"]
+    out, _ = _check(1000.2, shift=0.0)
+    assert out["absorbed"] and out["partners"] == []  # seen by nothing
+
+
+def test_excluded_there_beyond_the_quantile():
+    out, _ = _check(1000.0 + NEED + 0.1)
+    assert out["absorbed"] is False and out["better"] is False and out["partners"] == []
+
+
+def test_better_there_than_its_own_refit_is_not_absorbed():
+    # a refit stuck near its null: held at the magnitude, 20 units of χ² better
+    out, _ = _check(980.0, shift=TO_0018)
+    assert out["better"] is True and out["absorbed"] is False and out["partners"] == []
+    assert out["delta_nll"] == pytest.approx(-10.0)
+    # inside the quantile on the better side: as well, not better
+    out, _ = _check(1000.0 - NEED + 0.1)
+    assert out["absorbed"] is True and out["better"] is False
+
+
+def test_an_unconverged_solve_settles_nothing():
+    out, _ = _check(980.0, status="Maximum_Iterations_Exceeded")
+    assert out["absorbed"] is None and out["better"] is False
