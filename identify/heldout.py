@@ -62,7 +62,11 @@ def _kkt_solve(H, Jg, rhs_grad, g, free):
     try:
         sol = spla.splu(K).solve(rhs)
     except RuntimeError:  # exactly singular (a direction no kept row sees): least squares
-        sol = np.linalg.lstsq(K.toarray(), rhs, rcond=1e-12)[0]
+        Kd = K.toarray()
+        # (non-finite, LAPACK prints "DLASCL parameter number 4 had an illegal value"; the
+        # step is then no step, and the caller's check of the linear prediction refuses it)
+        sol = (np.linalg.lstsq(Kd, rhs, rcond=1e-12)[0] if np.all(np.isfinite(Kd)) and np.all(np.isfinite(rhs))
+               else np.full(rhs.shape, np.nan))
     d = np.zeros(H.shape[0])
     d[free] = sol[: len(free)]
     return d

@@ -180,6 +180,9 @@ class Logarithmic(AgingLaw):
         return mu_0 + b * ops.log(1 + t_rest / t_c)
 
 
+_DECAY_FLOOR = 1e-30  # e^(−t/τ) below this: past 69 τ of rest (Logistic.rest)
+
+
 @dataclass(frozen=True, repr=False)
 class Logistic(AgingLaw):
     """Carlson–Batista phase-transition law, logistic and bounded (Eqs. 3-4).
@@ -217,11 +220,13 @@ class Logistic(AgingLaw):
         d = hi - lo
         # each branch with its own clipped argument, so that the branch not taken stays
         # finite (no pole, no 0/0) and neither its value nor its derivative leaks; written
-        # with e^(−t/τ) ≤ 1, which underflows to 0 instead of overflowing
-        decay = ops.exp(-t / p["tau"])
+        # with e^(−t/τ) ≤ 1. Its floor changes no value: a seed ψ − μmin is 0 or at least
+        # the state's round-off (~1e-16), which has re-aged fully by then; it keeps the
+        # derivative at a fully rejuvenated contact, 1/e^(−t/τ), finite (measured: squared
+        # in a held-out step's Gauss–Newton matrix it overflowed, and LAPACK was handed inf)
+        decay = ops.fmax(ops.exp(-t / p["tau"]), _DECAY_FLOOR)
         up = ops.fmax(state0 - lo, 0.0)
-        # (a fully rejuvenated contact, up = 0, after a rest so long that decay is 0: 0/0)
-        above = lo + d * up / ops.fmax(up + (d - up) * decay, 1e-300)
+        above = lo + d * up / (up + (d - up) * decay)
         down = ops.fmax(lo - state0, 0.0)
         below = lo - d * down * decay / (d + down - down * decay)
         if ops is np:

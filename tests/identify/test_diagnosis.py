@@ -1243,3 +1243,22 @@ def test_a_candidate_refit_stalled_near_continuity_counts_as_converged(small_fit
     judge = lambda p: Problem._stalled(p, 14, r, Jr, d, g, damped=False)  # noqa: E731
     assert judge(SimpleNamespace(stall_feas=STALL_FEAS, stall_tol=ROUND_GAIN))[1] is False
     assert judge(SimpleNamespace(stall_feas=GIVE_UP_FEAS, stall_tol=ROUND_GAIN)) == (STALLED, True)
+
+
+def test_a_singular_held_out_step_with_non_finite_entries_is_no_step(monkeypatch):
+    """LAPACK is never handed inf (it prints "DLASCL parameter number 4 had an illegal
+    value"; measured in a logistic refit's held-out step): the step is NaN, which the
+    check of the linear prediction then refuses."""
+    import scipy.sparse as sp
+
+    from identify import heldout
+
+    def singular(_K):
+        raise RuntimeError("Factor is exactly singular")
+
+    called = []
+    monkeypatch.setattr(heldout.spla, "splu", singular)
+    monkeypatch.setattr(heldout.np.linalg, "lstsq", lambda *a, **k: called.append(1))
+    H = sp.csc_matrix(np.array([[np.inf, 0.0], [0.0, 1.0]]))
+    d = heldout._kkt_solve(H, sp.csr_matrix((0, 2)), np.ones(2), np.zeros(0), np.arange(2))
+    assert np.all(np.isnan(d)) and not called

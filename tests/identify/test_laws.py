@@ -71,6 +71,15 @@ def test_logistic_below_mu_min_relaxes_up_to_it_and_stays_finite():
     assert law.rest(lo - 1e-13, 0.01, P) == pytest.approx(law.rest(lo + 1e-13, 0.01, P), abs=3e-13)
     with np.errstate(divide="raise", invalid="raise", over="raise"):  # (underflow to 0 is the point)
         assert law.rest(lo, 1e4, P) == lo
+    # its derivative there, e^(t/τ) for the law as written, stays finite (squared in a
+    # held-out step it had overflowed), and no representable seed's value changes
+    import casadi as ca
+
+    z, tt = ca.SX.sym("z"), ca.SX.sym("t")
+    f = ca.Function("f", [z, tt], [ca.jacobian(law.rest(z, tt, P, ops=ca), z)])
+    assert np.isfinite(float(f(lo, 1e4))) and float(f(lo, 1e4)) <= 1e31
+    seed = lo + 2e-16
+    assert law.rest(seed, 200 * tau, P) == pytest.approx(hi, abs=1e-12)
 
 
 def test_a_logistic_slip_can_start_below_mu_min():
