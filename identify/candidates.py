@@ -441,7 +441,7 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
     # quantile: no parameter of the model stands in for it there; the refit ended in a
     # local solution near its null (a start the solve never saw), which the report says
     better = bool(settled and 2 * dnll < -need)
-    absorbed = bool(2 * dnll <= need) and not better if settled else None
+    absorbed = bool(-need <= 2 * dnll <= need) if settled else None
     got = dict(zip(names, (float(v) for v in prob.theta.from_scaled(sol["w"][: prob.n_theta]))))
     se_m = {}
     if absorbed:

@@ -72,7 +72,7 @@ def test_logistic_below_mu_min_relaxes_up_to_it_and_stays_finite():
     with np.errstate(divide="raise", invalid="raise", over="raise"):  # (underflow to 0 is the point)
         assert law.rest(lo, 1e4, P) == lo
     # its derivative there, e^(t/τ) for the law as written, stays finite (squared in a
-    # held-out step it had overflowed), and no representable seed's value changes
+    # held-out step it had overflowed), and a seed of round-off size still re-ages fully
     import casadi as ca
 
     z, tt = ca.SX.sym("z"), ca.SX.sym("t")
