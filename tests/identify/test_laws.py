@@ -80,6 +80,12 @@ def test_logistic_below_mu_min_relaxes_up_to_it_and_stays_finite():
     assert np.isfinite(float(f(lo, 1e4))) and float(f(lo, 1e4)) <= 1e31
     seed = lo + 2e-16
     assert law.rest(seed, 200 * tau, P) == pytest.approx(hi, abs=1e-12)
+    # the floor of e^(−t/τ) that bounds it moves no value beyond round-off
+    t = np.linspace(0.0, 400 * tau, 2001)
+    for gap in (1e-16, 2e-16, 1e-15, 1e-12, 1e-6, 0.1):
+        up = (lo + gap) - lo  # the seed as the state holds it
+        exact = lo + (hi - lo) * up / (up + (hi - lo - up) * np.exp(-t / tau))
+        np.testing.assert_allclose(law.rest(lo + gap, t, P), exact, rtol=0, atol=1e-15)
 
 
 def test_a_logistic_slip_can_start_below_mu_min():
