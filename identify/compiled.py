@@ -87,10 +87,10 @@ def compiled(build: Callable[[dict], ca.Function], tag: str = "f") -> ca.Functio
         try:
             folder.mkdir(parents=True, exist_ok=True)
             with _file_lock(folder, exclusive=False):
-                fn = _load(path, lib)
+                fn = _load_or_none(path, lib)
             if fn is None:
                 with _file_lock(folder, exclusive=True):
-                    fn = _load(path, lib)  # another process may have compiled it meanwhile
+                    fn = _load_or_none(path, lib)  # another process may have compiled it meanwhile
                     if fn is None:
                         fn = _compile(build, folder, stem, path, lib)
                         log.info("compiled %s -> %s", tag, path)
@@ -120,6 +120,22 @@ def _file_lock(folder: Path, exclusive: bool) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _load_or_none(path: Path, lib: Path) -> ca.Function | None:
+    """:func:`_load`, or None (the entry is then compiled again) when the entry cannot
+    be loaded. How an entry breaks: CasADi writes a JIT'ed Function's derivative under
+    the Function's own C name into its directory, so differentiating a cached Function
+    (``ca.jtimes`` through the compiled arc, tried 2026-11-24) replaced the arc's
+    library with another; every later process failed to load it and, before this,
+    fell back to interpreted Functions for good: ten times slower (0.45 → 5.3 ms per
+    arc, measured), with one warning."""
+    try:
+        return _load(path, lib)
+    except Exception as err:
+        log.warning("cached compiled Function %s cannot be loaded (%s); compiling it again",
+                    path, str(err).strip().splitlines()[-1] if str(err).strip() else err)
+        return None
 
 
 def _load(path: Path, lib: Path) -> ca.Function | None:

@@ -53,3 +53,20 @@ def test_compile_and_load_leave_no_files(tmp_path):
     assert list(tmpdir.iterdir()) == [] and list(cwd.iterdir()) == []
     assert first["f"] == pytest.approx(2.0 * math.sin(2.0), rel=1e-15)
     assert first["i"] == pytest.approx(math.exp(-1.0), rel=1e-8)
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="no C compiler")
+def test_a_broken_entry_is_compiled_again(tmp_path):
+    """An entry whose library is another Function's (what differentiating a cached
+    Function does: CasADi writes the derivative under the same C name) is compiled
+    again, not a reason to run every Function interpreted."""
+    tmpdir, cache, cwd = (tmp_path / n for n in ("tmp", "cache", "cwd"))
+    for d in (tmpdir, cwd):
+        d.mkdir()
+    first = _run(tmpdir, cache, cwd)
+    libs = {p.name.split("_")[0]: p for p in cache.rglob("*") if p.suffix not in (".casadi", "") and "_" in p.name}
+    assert set(libs) == {"f", "i"}, sorted(p.name for p in cache.rglob("*"))
+    shutil.copyfile(libs["i"], libs["f"])  # f's library replaced by another
+    again = _run(tmpdir, cache, cwd)
+    assert not again["failed"] and again == first
+    assert _run(tmpdir, cache, cwd) == first  # the entry compiled again is loadable
