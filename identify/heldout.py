@@ -176,7 +176,7 @@ def _subproblem(prob, w: np.ndarray, runs: Sequence[int]):
 
     lay = Layout.of(prob)
     sub = Problem([prob.runs[i] for i in runs], prob.model, prob.values, prob.opts)
-    for tol in ("stat_tol", "feas_tol", "stall_tol", "stall_feas"):
+    for tol in ("stat_tol", "feas_tol", "stall_tol", "stall_feas", "near_tol"):
         setattr(sub, tol, getattr(prob, tol))
     sub.ev_M = np.asarray(prob.ev_M)[np.isin(prob.ev_run, runs)]
     sub.build()

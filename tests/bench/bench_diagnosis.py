@@ -158,6 +158,9 @@ def main(argv=None):
     s.add_argument("--workers", type=int, default=2)
     s.set_defaults(func=speed)
     args = ap.parse_args(argv)
+    from _code import code_under_test
+
+    code_under_test(__file__)
     args.func(args)
 
 

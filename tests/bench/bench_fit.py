@@ -277,6 +277,9 @@ def main(argv=None) -> int:
     for p in (c, s):
         p.add_argument("--json", metavar="OUT")
     a = ap.parse_args(argv)
+    from _code import code_under_test
+
+    code = code_under_test(__file__)
     if a.what == "calibration":
         if not 0 <= a.jitter_load < 1:
             ap.error(f"--jitter-load {a.jitter_load}: must be in [0, 1)")
@@ -292,7 +295,7 @@ def main(argv=None) -> int:
         out = speed([int(x) for x in a.runs.split(",")], a.steps, a.coating)
     if a.json:
         with open(a.json, "w") as f:
-            json.dump(out, f, indent=1, default=float)
+            json.dump(dict(out, code=code), f, indent=1, default=float)
     return 0
 
 
