@@ -2,7 +2,7 @@
 
     python tests/bench/bench_diagnosis.py confusion [--effects a,b,c+d] [--scales 1,0.3,0.1]
         [--quick] [--workers 2] [--out bench_diagnosis.jsonl] [--progress]
-    python tests/bench/bench_diagnosis.py speed [--workers 2]
+    python tests/bench/bench_diagnosis.py speed [--workers 2] [--progress]
 
 ``confusion``: for each effect (and "none", "outside"), simulate the withheld-effect data
 set (:func:`identify.withheld.withheld_dataset`) with each scale times the effect's
@@ -131,7 +131,8 @@ def speed(args):
     base = identify.fit(traces, options=_baseline_options(None))
     t_fit = time.perf_counter() - t0
     t1 = time.perf_counter()
-    res = diagnose(None, baseline=base, options=DiagnosisOptions(workers=args.workers))
+    res = diagnose(None, baseline=base, options=DiagnosisOptions(workers=args.workers),
+                   progress=_stamped if args.progress else None)
     t_diag = time.perf_counter() - t1
     print(f"baseline fit {t_fit:.1f} s; diagnosis (all {len(EFFECTS)} candidates, leave-one-run-out, "
           f"{args.workers} workers) {t_diag:.1f} s = {t_diag / t_fit:.1f}× the fit; target 120 s "
@@ -141,6 +142,11 @@ def speed(args):
                     for r in res.rounds for c in r if c.get("effect")), reverse=True)
     print(f"{res.timing['refits']} refits; the longest: " + ", ".join(
         f"{e} {w:.1f} s ({st}, {it} its)" for w, e, st, it in walls[:6]))
+    # a diagnosis shorter than the refits' sum over the workers would be impossible; a
+    # longer one is time outside the parallel rounds (or workers waiting on the last refit)
+    total = sum(w for w, *_ in walls)
+    print(f"the candidates' refits sum to {total:.1f} s of worker time, {total / args.workers:.1f} s per worker "
+          f"against the diagnosis's {t_diag:.1f} s")
 
 
 def main(argv=None):
@@ -156,6 +162,7 @@ def main(argv=None):
     c.set_defaults(func=confusion)
     s = sub.add_parser("speed")
     s.add_argument("--workers", type=int, default=2)
+    s.add_argument("--progress", action="store_true", help="the diagnosis's progress on stderr, time-stamped")
     s.set_defaults(func=speed)
     args = ap.parse_args(argv)
     from _code import code_under_test

@@ -1262,3 +1262,19 @@ def test_a_singular_held_out_step_with_non_finite_entries_is_no_step(monkeypatch
     H = sp.csc_matrix(np.array([[np.inf, 0.0], [0.0, 1.0]]))
     d = heldout._kkt_solve(H, sp.csr_matrix((0, 2)), np.ones(2), np.zeros(0), np.arange(2))
     assert np.all(np.isnan(d)) and not called
+
+
+def test_refits_go_to_the_workers_longest_first():
+    """A round is as long as its busiest worker: the topography's several starts and a
+    law's fresh solve go first, the one-start refits after them in library order."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import _expected_cost
+
+    def task(effect, starts=1, staged=False):
+        return SimpleNamespace(effect=effect, starts=[{}] * starts, staged=staged)
+
+    tasks = [task(None), task("aging_logistic", staged=True), task("damping"), task("topography", starts=8),
+             task("drift"), task("rejuvenation", starts=0)]
+    order = [t.effect for t in sorted(tasks, key=_expected_cost, reverse=True)]
+    assert order == ["topography", "aging_logistic", None, "damping", "drift", "rejuvenation"]
