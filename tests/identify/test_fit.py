@@ -1202,6 +1202,18 @@ def test_profile_likelihood(small_fit, name):
     assert name in small_fit.to_json()["profiles"]
 
 
+def test_an_unconverged_fit_flags_its_parameters(small_traces):
+    """A solve stopped before it converged (here by its iteration limit) gives numbers
+    that are where it stopped: every free parameter says so, and the report shows it."""
+    res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}, max_iter=1, sequence_trials=0,
+                                               staged_start=False))
+    assert not res.solver["success"]
+    for name in ("mu_max", "mu_min", "tau", "A"):
+        flag = res[name].flag or ""
+        assert "not converged" in flag or "bound" in flag or "undetermined" in flag, (name, flag)
+    assert "not converged" in res.report()
+
+
 def test_parameter_at_bound_is_flagged(small_traces):
     """A bound that excludes the truth (τ = 67 ms, bounded to 0.2-0.5 s): the estimate
     sits on the bound and the report says so instead of giving a confident number."""
