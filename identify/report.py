@@ -289,7 +289,8 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
             # the covariance of a point the solver did not finish at is not an interval:
             # calibration seed 44 stopped in a degenerate basin (τ = 2.8e-5 s) with a τ
             # standard error of 3 % that missed the truth by 80000 of them
-            flag = f"not converged ({best.get('status')}): the value is where the solver stopped, no interval"
+            flag = (f"not converged ({best.get('status')}): the value is where the solver stopped, "
+                    "its interval not to be trusted")
         params[n] = ParameterEstimate(
             name=n, value=float(vals[i]), stderr=se, ci95=ci, free=True, unit=SPECS[n].unit,
             init=float(start.get(n, np.nan)), flag=flag,
