@@ -618,6 +618,32 @@ def test_a_solve_whose_arc_jacobian_is_wrong_stops_as_stalled(small_fit, monkeyp
     assert np.abs(true_evaluate(res["w"])[1]).max() > nlp.STALL_FEAS
 
 
+def _gn_step(prob, w):
+    """(max |g|, ½‖Jᵣd‖², ∇f·d, multipliers) of the undamped Gauss–Newton step at w."""
+    import identify.nlp as nlp
+
+    lbx, ubx = prob.bounds()
+    free = np.nonzero(lbx < ubx)[0]
+    r, g, Jr, Jg = prob.evaluate(w, jac=True)
+    grad = Jr.T @ r
+    d = np.zeros(prob.n_w)
+    sol = nlp._kkt_solve((Jr.T @ Jr).tocsc(), Jg, grad, g, free)
+    d[free] = sol[: len(free)]
+    return np.abs(g).max(), 0.5 * float(np.sum((Jr @ d) ** 2)), float(grad @ d), sol[len(free):]
+
+
+def _violate(prob, w, g_at_w, monkeypatch):
+    """prob's constraints shifted (everywhere) so that they read ``g_at_w`` at w."""
+    true_evaluate = prob.evaluate
+    noise = g_at_w - true_evaluate(w)[1]
+
+    def noisy(x, jac=False):
+        out = true_evaluate(x, jac)
+        return (out[0], out[1] + noise, *out[2:])
+
+    monkeypatch.setattr(prob, "evaluate", noisy)
+
+
 def test_a_violation_at_the_arcs_noise_does_not_hold_a_converged_solve(small_fit, monkeypatch):
     """At the solution, the constraints violated by 0.9 pm (inside FEAS_TOL, the size of
     the arcs' integration noise), each against its multiplier's sign: the step that removes
@@ -630,29 +656,12 @@ def test_a_violation_at_the_arcs_noise_does_not_hold_a_converged_solve(small_fit
     prob, w = small_fit.problem, _polished(small_fit)
     prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP)
     _strict(prob, monkeypatch)  # (the tight rule is this test's subject)
-    true_evaluate = prob.evaluate
-    lbx, ubx = prob.bounds()
-    free = np.nonzero(lbx < ubx)[0]
-
-    def step(evaluate):
-        r, g, Jr, Jg = evaluate(w, jac=True)
-        grad = Jr.T @ r
-        d = np.zeros(prob.n_w)
-        sol = nlp._kkt_solve((Jr.T @ Jr).tocsc(), Jg, grad, g, free)
-        d[free] = sol[: len(free)]
-        return np.abs(g).max(), 0.5 * float(np.sum((Jr @ d) ** 2)), -0.5 * float(grad @ d), sol[len(free):]
-
     # the violation at w 0.9 FEAS_TOL against each multiplier's sign, the fit's own taken
     # out: the promise then carries ½Σ|λ|·0.9 FEAS_TOL
-    lam = step(true_evaluate)[3]
-    noise = -0.9 * nlp.FEAS_TOL * np.sign(lam) - true_evaluate(w)[1]
-
-    def noisy(x, jac=False):
-        out = true_evaluate(x, jac)
-        return (out[0], out[1] + noise, *out[2:])
-
-    monkeypatch.setattr(prob, "evaluate", noisy)
-    feas, moves, promises, _ = step(noisy)
+    lam = _gn_step(prob, w)[3]
+    _violate(prob, w, -0.9 * nlp.FEAS_TOL * np.sign(lam), monkeypatch)
+    feas, moves, grad_d, _ = _gn_step(prob, w)
+    promises = -0.5 * grad_d
     assert feas < nlp.FEAS_TOL
     # the case this is about: the old test (the promise) would go on, the new one stops
     assert moves < prob.stat_tol < promises, (moves, promises)
@@ -676,30 +685,13 @@ def test_a_step_that_barely_moves_the_model_ends_the_solve_above_feas_tol(small_
 
     prob, w = small_fit.problem, _polished(small_fit)
     prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP)
-    true_evaluate = prob.evaluate
-    lbx, ubx = prob.bounds()
-    free = np.nonzero(lbx < ubx)[0]
-
-    def step(evaluate):
-        r, g, Jr, Jg = evaluate(w, jac=True)
-        grad = Jr.T @ r
-        d = np.zeros(prob.n_w)
-        sol = nlp._kkt_solve((Jr.T @ Jr).tocsc(), Jg, grad, g, free)
-        d[free] = sol[: len(free)]
-        moves = 0.5 * float(np.sum((Jr @ d) ** 2))
-        return np.abs(g).max(), moves, abs(float(grad @ d) + moves), sol[len(free):]
-
-    lam = step(true_evaluate)[3]
+    lam = _gn_step(prob, w)[3]
     i = int(np.argmin(np.abs(lam)) if which == "weakest" else np.argmax(np.abs(lam)))
-    noise = -true_evaluate(w)[1]
-    noise[i] -= violation * np.sign(lam[i])
-
-    def noisy(x, jac=False):
-        out = true_evaluate(x, jac)
-        return (out[0], out[1] + noise, *out[2:])
-
-    monkeypatch.setattr(prob, "evaluate", noisy)
-    feas, moves, change, _ = step(noisy)
+    g = np.zeros_like(lam)
+    g[i] = -violation * np.sign(lam[i])
+    _violate(prob, w, g, monkeypatch)
+    feas, moves, grad_d, _ = _gn_step(prob, w)
+    change = abs(grad_d + moves)  # ½χ²'s change along the full step
     assert nlp.FEAS_TOL < feas < nlp.STALL_FEAS  # (the tight rule cannot stop it)
     stops = which == "weakest"
     assert moves < nlp.NEAR_TOL and (change < nlp.STALL_TOL) == stops, (moves, change)
