@@ -25,7 +25,7 @@ from .missed import missed_slips
 from .nlp import Problem
 from .params import parameter_set, spec
 from .rundata import RunData, _run_data
-from .sequence import _ambiguous_triggers, _misfit_triggers, _with_triggers
+from .sequence import _ambiguous_triggers, _batch_triggers, _misfit_triggers, _with_triggers
 
 __all__ = ["FitOptions", "fit", "FitError", "RunData", "prepare_runs", "decide_sequence"]
 
@@ -321,8 +321,9 @@ NOISE_P = 1e-3
 def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_start: dict | None = None):
     """The mode sequence decided against the model from a solution ``best`` of ``prob``:
     triggers the model places a step or two off moved (the frames taken while the block
-    moved left out), missed slips inserted, then the detector's ambiguous triggers and
-    whatever still misfits tried (:mod:`identify.sequence`), each change re-solved.
+    moved left out), missed slips inserted, runs with many triggers a step off by their
+    residuals given one trial each, then the detector's ambiguous triggers and whatever
+    still misfits tried (:mod:`identify.sequence`), each change re-solved.
     Returns (problem, solution) with the counts in ``triggers_moved``, ``slips_inserted``
     and ``slips_removed``, and in ``restarts`` each solve after inserted slips
     (:func:`_after_insertion`). ``fresh_start`` (parameter values): after inserting slips,
@@ -356,10 +357,12 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
     # then the detector's ambiguous triggers, against the repaired sequence (tried before
     # it, on merged slips, they moved correct triggers: calibration seeds 1 and 4)
     # (its kept changes are solved at held parameters; the misfit pass solves them jointly)
+    # (first, the runs with many triggers a step off by their residuals, each in one trial)
+    prob, best, n_batch = _batch_triggers(prob, best, model, values, opts, say)
     prob, best, n_alt = _ambiguous_triggers(prob, best, model, values, opts, say)
     # last, whatever the local scores and the detector left where the model's triggers misfit
-    prob, best, n_seq = _misfit_triggers(prob, best, model, values, opts, say, unsolved=n_alt > 0)
-    best["triggers_moved"] = refined + n_alt + n_seq["moved"]
+    prob, best, n_seq = _misfit_triggers(prob, best, model, values, opts, say, unsolved=n_alt + n_batch > 0)
+    best["triggers_moved"] = refined + n_batch + n_alt + n_seq["moved"]
     best["slips_inserted"] = inserted + n_seq["inserted"]
     best["slips_removed"] = n_seq["removed"]
     best["restarts"] = restarts

@@ -15,6 +15,11 @@ A trial changes one run's sequence, and given the parameters the runs are indepe
 alone with the parameters held (:func:`_alone`): its χ² change is the whole problem's
 at those parameters. Kept changes are solved jointly, the parameters free, once per
 pass (:func:`_joint`).
+
+A run with many slips off by whole steps (a phase-locked run of 3σ slips: 16 of its
+323 on the 10-run speed benchmark) is first given one trial that moves each of them by
+what its residual says (:func:`_batch_triggers`), instead of a trial, a re-solve and a
+rebuild of the whole problem per slip.
 """
 
 from __future__ import annotations
@@ -151,6 +156,8 @@ SCREEN_KEEP = 3
 # (identify.events) left 9.6 two slips after it.
 TRIGGER_GATE = 2.0
 GATE_REACH = 2  # the slip's own trigger and the next two (where a late one rings)
+BATCH_MIN = 3  # slips a run needs a step off, by their residuals, for a batch trial (_batch_triggers)
+BATCH_REACH = 2  # steps a batch trial moves a slip at most
 
 
 def _trigger_misfit(prob, r: np.ndarray, i: int, n: int, reach: int = GATE_REACH) -> float:
@@ -428,6 +435,83 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
     return prob, best, moved
 
 
+
+
+def _predicted_shifts(prob, r: np.ndarray) -> dict:
+    """{run index: {slip index in its run: shift in steps}} for the slips whose own
+    trigger residual exceeds :data:`TRIGGER_GATE` while the slip before theirs fits:
+    the shift round(r/√12) that brings the capacity crossing into the run's phase
+    (r = √12·(s − φ), s in units of the step interval). A slip after a misfit one is
+    left out: its residual is the ringing of its predecessor, not its own."""
+    t0 = prob.residual_groups()["triggers"][0]
+    res: dict = {}
+    for q, e in enumerate(prob.ev_next):
+        v = r[t0 + q]
+        i = int(prob.ev_run[e])
+        k = int(np.searchsorted(prob.runs[i].trigger_steps, prob.ev_step[e]))
+        res.setdefault(i, {})[k] = float(v) if np.isfinite(v) else np.inf
+    out: dict = {}
+    for i, by_k in res.items():
+        for k, v in by_k.items():
+            before = by_k.get(k - 1, 0.0)  # (a run's second slip: its first has no residual)
+            if not (np.isfinite(v) and abs(v) > TRIGGER_GATE and abs(before) <= TRIGGER_GATE):
+                continue
+            d = int(np.clip(np.rint(v / np.sqrt(12.0)), -BATCH_REACH, BATCH_REACH))
+            if d:
+                out.setdefault(i, {})[k] = d
+    return out
+
+
+def _batch_triggers(prob, best, model, values, opts, say):
+    """Move, in one trial per run, every slip whose trigger residual says how many
+    steps off it is (:func:`_predicted_shifts`), before the passes that try one change
+    at a time.
+
+    Why: a run of slips a few σ of a frame long can have many triggers a step off, each
+    one kept by the passes after a trial, a re-solve of its run and a rebuild of the
+    whole problem (~4 s each on the 10-run speed benchmark, whose 3σ run at 100 Hz had
+    15 such changes kept and 12 triggers still misfit when the trial budget was spent).
+    Runs with fewer than :data:`BATCH_MIN` such slips are left to those passes. The
+    trial is kept when it lowers the run's χ² − n_obs by more than 1 per slip moved;
+    the passes after it still try whatever misfits (a wrong move among many is theirs
+    to undo). Returns (problem, solution, slips moved); the whole problem is left to
+    be solved by the misfit pass (its ``unsolved``)."""
+    if int(opts.sequence_trials) <= 0 or not prob.E:
+        return prob, best, 0
+    shifts = _predicted_shifts(prob, prob.residuals(best["w"]))
+    short = _held(replace(opts, max_iter=TRIAL_ITER))
+    moved, its, wall = 0, 0, 0.0
+    for i in sorted(shifts, key=lambda i: -len(shifts[i])):
+        if len(shifts[i]) < BATCH_MIN:
+            continue
+        run = prob.runs[i]
+        steps = np.array(run.trigger_steps, int)
+        new = steps.copy()
+        for k, d in shifts[i].items():
+            new[k] += d
+        if not (np.all(np.diff(new) > 0) and new[0] >= 0 and new[-1] <= int(run.events.steps.max())):
+            log.info("batch of trigger moves on run %d not tried: two slips would share a step", i)
+            continue
+        alone = _alone_or_none(prob, best["w"], i, model, opts, say)
+        if alone is None:
+            continue
+        sub, w_sub, now = alone
+        trial, sol, f = _trial(sub, w_sub, {0: new}, model, sub.values, short, say)
+        its, wall = its + sol["iterations"], wall + sol["wall_s"]
+        n = len(shifts[i])
+        kept = trial is not None and f < now - n
+        say(f"  {run.name}: {n} slip trigger(s) moved where their residuals put them "
+            f"(" + ", ".join(f"{int(steps[k])}{d:+d}" for k, d in sorted(shifts[i].items())) + "): "
+            f"the run's chi2 - n_obs {now:.1f} -> {f:.1f}, " + ("kept" if kept else "not kept"))
+        if not kept:
+            continue
+        full, adopted, it_full, s_full = _kept(prob, best, i, trial, sol, model, values, opts, say)
+        its, wall = its + it_full, wall + s_full
+        if full is None:
+            continue
+        prob, best, moved = full, adopted, moved + n
+    best["iterations"], best["wall_s"] = best["iterations"] + its, best["wall_s"] + wall
+    return prob, best, moved
 
 
 def _flagged(prob, r: np.ndarray) -> list:
