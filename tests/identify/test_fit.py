@@ -480,6 +480,34 @@ def test_many_late_triggers_are_moved_in_one_trial(small_traces, monkeypatch, ru
     assert (not one_by_one) if batch == "kept" else one_by_one, said
 
 
+def test_insertions_go_with_the_first_moves_that_do_not_meet_them():
+    """The first round's trigger moves and the missed slips found at the same solution
+    are made together (one solve from a fresh start instead of a solve for the moves
+    first); a move that meets or crosses an inserted slip is left to the next round."""
+    from types import SimpleNamespace
+
+    from identify.fit import _with_insertions
+
+    prob = SimpleNamespace(runs=[SimpleNamespace(trigger_steps=np.array([10, 20, 30, 40])),
+                                 SimpleNamespace(trigger_steps=np.array([5, 15]))])
+    moved = {0: np.array([10, 21, 30, 41])}
+    changes, n_moved, n = _with_insertions(prob, moved, 2, {0: np.array([10, 20, 25, 30, 40]),
+                                                             1: np.array([5, 9, 15])}, 2)
+    assert (n_moved, n) == (2, 2) and set(changes) == {0, 1}
+    np.testing.assert_array_equal(changes[0], [10, 21, 25, 30, 41])
+    np.testing.assert_array_equal(changes[1], [5, 9, 15])
+    # a slip inserted before a trigger moved later stays in its plateau
+    changes, n_moved, n = _with_insertions(prob, moved, 2, {0: np.array([10, 19, 20, 30, 40])}, 1)
+    np.testing.assert_array_equal(changes[0], [10, 19, 21, 30, 41])
+    # the moved trigger meets the inserted slip, or passes it: that move is not made
+    for moves, ins in (([10, 21, 30, 41], 21), ([10, 23, 30, 41], 22)):
+        changes, n_moved, n = _with_insertions(prob, {0: np.array(moves)}, 2, {0: np.r_[10, 20, ins, 30, 40]}, 1)
+        assert (n_moved, n) == (1, 1)
+        np.testing.assert_array_equal(changes[0], [10, 20, ins, 30, 41])
+    changes, n_moved, n = _with_insertions(prob, moved, 2, {}, 0)
+    assert changes is moved and (n_moved, n) == (2, 0)
+
+
 def test_a_run_alone_has_the_whole_problems_rows(small_fit):
     """A mode-sequence trial solves one run with the parameters held: at the fitted w
     that run's residuals are the whole problem's rows for it, so the runs' excess χ²
