@@ -446,20 +446,6 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
 
 
 
-def _misfit_slips(prob, r: np.ndarray, i: int) -> set:
-    """Indices (in run i) of the slips whose trigger residual in ``r`` exceeds
-    :data:`TRIGGER_GATE` or cannot be evaluated."""
-    t0 = prob.residual_groups()["triggers"][0]
-    out = set()
-    for q, e in enumerate(prob.ev_next):
-        if int(prob.ev_run[e]) != i:
-            continue
-        v = r[t0 + q]
-        if not (np.isfinite(v) and abs(v) <= TRIGGER_GATE):
-            out.add(int(np.searchsorted(prob.runs[i].trigger_steps, prob.ev_step[e])))
-    return out
-
-
 def _predicted_shifts(prob, r: np.ndarray) -> dict:
     """{run index: {slip index in its run: shift in steps}} for the slips whose own
     trigger residual exceeds :data:`TRIGGER_GATE` while the slip before theirs fits:
@@ -528,7 +514,7 @@ def _batch_triggers(prob, best, model, values, opts, say):
                 break
             # a moved slip whose trigger still misfits in the trial's solution was moved
             # wrong, or not far enough: its move is dropped and the rest tried again
-            wrong = _misfit_slips(trial, trial.residuals(sol["w"]), 0) & set(moves)
+            wrong = {k for _, _, k in _flagged(trial, trial.residuals(sol["w"]))} & set(moves)
             n = len(moves)
             kept = not wrong and f < now - BATCH_GAIN * n
             say(f"  {run.name}: {n} slip trigger(s) moved where their residuals put them "
