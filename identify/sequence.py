@@ -446,19 +446,25 @@ def _ambiguous_triggers(prob, best, model, values, opts, say):
 
 
 
+def _trigger_residuals(prob, r: np.ndarray):
+    """(trigger residual, run, slip index in its run) of every slip with a trigger row
+    in ``r``; a residual the model cannot evaluate is inf."""
+    t0 = prob.residual_groups()["triggers"][0]
+    for q, e in enumerate(prob.ev_next):
+        v = float(r[t0 + q])
+        i = int(prob.ev_run[e])
+        yield (v if np.isfinite(v) else np.inf), i, int(np.searchsorted(prob.runs[i].trigger_steps, prob.ev_step[e]))
+
+
 def _predicted_shifts(prob, r: np.ndarray) -> dict:
     """{run index: {slip index in its run: shift in steps}} for the slips whose own
     trigger residual exceeds :data:`TRIGGER_GATE` while the slip before theirs fits:
     the shift round(r/√12) that brings the capacity crossing into the run's phase
     (r = √12·(s − φ), s in units of the step interval). A slip after a misfit one is
     left out: its residual is the ringing of its predecessor, not its own."""
-    t0 = prob.residual_groups()["triggers"][0]
     res: dict = {}
-    for q, e in enumerate(prob.ev_next):
-        v = r[t0 + q]
-        i = int(prob.ev_run[e])
-        k = int(np.searchsorted(prob.runs[i].trigger_steps, prob.ev_step[e]))
-        res.setdefault(i, {})[k] = float(v) if np.isfinite(v) else np.inf
+    for v, i, k in _trigger_residuals(prob, r):
+        res.setdefault(i, {})[k] = v
     out: dict = {}
     for i, by_k in res.items():
         for k, v in by_k.items():
@@ -539,15 +545,7 @@ def _flagged(prob, r: np.ndarray) -> list:
     """(|trigger residual|, run, slip index in its run) of the slips whose trigger
     residual exceeds :data:`TRIGGER_GATE` (one the model cannot evaluate counts as
     infinite), worst first."""
-    t0 = prob.residual_groups()["triggers"][0]
-    out = []
-    for q, e in enumerate(prob.ev_next):
-        v = r[t0 + q]
-        a = abs(v) if np.isfinite(v) else np.inf
-        if a > TRIGGER_GATE:
-            i = int(prob.ev_run[e])
-            k = int(np.searchsorted(prob.runs[i].trigger_steps, prob.ev_step[e]))
-            out.append((a, i, k))
+    out = [(abs(v), i, k) for v, i, k in _trigger_residuals(prob, r) if abs(v) > TRIGGER_GATE]
     return sorted(out, key=lambda c: -c[0])
 
 
