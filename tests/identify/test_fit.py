@@ -931,6 +931,33 @@ def test_a_step_rejected_on_forward_differences_is_taken_again_on_central(small_
     assert not prob.solve_gn(w)["central"]
 
 
+def test_a_failed_solve_is_solved_on_central_differences_only_near_continuity(small_fit, monkeypatch):
+    """A stall or failed line search on forward differences gets one more solve on
+    central ones where the differences can matter, within CENTRAL_RESOLVE_FEAS of
+    continuity; further out it is the constraints' curvature that stops the line search
+    (measured: a logistic-law refit from a start 0.23 µm off climbed the damping ladder
+    to its top on forward differences and again on central ones, 26 s for one point)."""
+    import identify.nlp as nlp
+
+    prob, w = small_fit.problem, small_fit.w.copy()
+    schemes = []
+
+    def failed(w0, fixed=None):
+        schemes.append(prob._cb_jac.scheme)
+        return dict(w=w0, f=1.0, status="Line_Search_Failed", success=False, iterations=3, wall_s=0.0)
+
+    monkeypatch.setattr(prob, "solve_gn", failed)
+    for violation, expected in ((10 * nlp.CENTRAL_RESOLVE_FEAS, ["forward"]),
+                                (0.1 * nlp.CENTRAL_RESOLVE_FEAS, ["forward", "central"])):
+        schemes.clear()
+        monkeypatch.setattr(prob, "_violation", lambda _w, v=violation: v)
+        res = prob.solve(w)
+        assert schemes == expected and res["status"] == "Line_Search_Failed"
+        assert res["iterations"] == 3 * len(expected) and prob._cb_jac_forward()
+    monkeypatch.undo()
+    assert prob._violation(w) < nlp.CENTRAL_RESOLVE_FEAS  # (the fit's own end is near continuity)
+
+
 def test_a_step_rejected_within_the_stall_tolerance_ends_the_solve(small_fit, monkeypatch):
     """Every trial point worse, at a feasible point whose undamped step promises less than
     STALL_TOL: no rung of the damping ladder could gain more, and the stall rule would
