@@ -97,6 +97,17 @@ LADDER_REACH = 0.02
 LADDER_STEP = 0.1
 MAX_SOC = 4  # second-order corrections tried for a rejected full step (Ipopt's max_soc)
 STALL_TOL = 0.01
+# A solve also ends, converged within tolerance (STALLED), once FLAT_ITERS iterations in a
+# row, accepted or rejected, at points feasible to feas_tol have not brought ½χ² down by
+# stall_tol from where it stood at the first of them: ½χ² is then known to stall_tol.
+# Why: there the Gauss–Newton model's promises are the arcs' Jacobian noise, not gains.
+# Measured on the 5-run speed benchmark (2026-11-25, its log): the fresh solve after
+# inserting 7 slips reached ½χ² 1122.5341 at iteration 17 (|g| 4e-8 µm), then spent
+# iterations 18-33 (~100 s of a 234 s fit) on steps that promised 0.01-0.09 and gave
+# nothing: accepted ones moved ½χ² by ±0.016, the central Jacobian's steps were rejected
+# rung after rung, and it ended at 1122.5338 (the stall rule's "within tolerance"). The
+# rejections count: each rung of the damping ladder there cost ~5 s of line search.
+FLAT_ITERS = 4
 STALL_FEAS = 1e-4
 # Converged also (without waiting on the stall rule) when, at a point feasible to
 # STALL_FEAS, the undamped step would move the model's predictions by less than NEAR_TOL
@@ -286,6 +297,8 @@ class Problem:
     ladder_reach, ladder_step = LADDER_REACH, LADDER_STEP
     stall_tol, stall_feas = STALL_TOL, STALL_FEAS
     near_tol = NEAR_TOL
+    give_up_feas = GIVE_UP_FEAS  # the give_up callback is asked only this close to continuity (µm)
+    flat_iters = FLAT_ITERS  # (0: the rule off)
 
     def __init__(self, runs: Sequence, model: Model, values: dict, opts):
         self.runs = list(runs)
@@ -715,7 +728,9 @@ class Problem:
         in a row stops: ``Stalled_Within_Tolerance`` (a success) if the constraints hold
         to ``STALL_FEAS`` and the linearised problem's solution is within ``STALL_TOL``
         of ½χ² of the point reached (on the undamped step, if the last was damped), else
-        ``Stalled``. A solve whose line search finds no step even at the largest damping,
+        ``Stalled``. So is one whose ½χ² has not fallen by ``stall_tol`` in
+        ``FLAT_ITERS`` iterations, accepted or rejected, at points feasible to
+        ``feas_tol`` (``Stalled_Within_Tolerance``). A solve whose line search finds no step even at the largest damping,
         or once no further damping could change the step (``ladder_reach``,
         :meth:`_damping_reach`), is judged the same way on its undamped step
         (``Stalled_Within_Tolerance``, else ``Line_Search_Failed``). A rejected step
@@ -735,6 +750,7 @@ class Problem:
         status, success, it = "Maximum_Iterations_Exceeded", False, 0
         said = t0
         stalled = 0  # consecutive iterations that gained < stat_tol of merit
+        flat, flat_ref = 0, None  # iterations at feasible points since ½χ² last fell by stall_tol
         refreshed = False
         r, g = self.evaluate(w)
         for it in range(1, opts.max_iter + 1):
@@ -799,7 +815,19 @@ class Problem:
                 else:
                     status, success = "Solve_Succeeded", True
                 break
-            if self.give_up is not None and lm == 0 and feas0 < GIVE_UP_FEAS:
+            if self.flat_iters and feas0 < feas_tol:
+                # (FLAT_ITERS) every iteration counts here, accepted or rejected
+                f_now = 0.5 * float(r0 @ r0)
+                if flat_ref is None or f_now < flat_ref - self.stall_tol:
+                    flat_ref, flat = f_now, 0
+                else:
+                    flat += 1
+                    if flat >= self.flat_iters:
+                        log.debug("GN it %d: ½χ² %.8g within %.2g of %.8g for %d iterations at |g| < %.0e: %s",
+                                  it, f_now, self.stall_tol, flat_ref, flat, feas_tol, STALLED)
+                        status, success = STALLED, True
+                        break
+            if self.give_up is not None and lm == 0 and feas0 < self.give_up_feas:
                 if self.give_up(it, 0.5 * float(r0 @ r0), -float(r0 @ dr + 0.5 * dr @ dr)):
                     status = GAVE_UP
                     break

@@ -803,6 +803,40 @@ def test_a_step_that_barely_moves_the_model_ends_the_solve_above_feas_tol(small_
         assert res["iterations"] > 1
 
 
+def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, monkeypatch):
+    """FLAT_ITERS: at the solution, the residuals' Jacobian off by 20 % per entry (new noise
+    each time), so every step promises what the function does not give, as the arcs'
+    Jacobian noise did in the 5-run speed benchmark's tail (16 iterations, ~100 s, for
+    3e-4 of ½χ²). Four iterations, accepted or rejected, that do not lower ½χ² by
+    stall_tol end the solve as converged within tolerance; without the rule it goes on."""
+    import identify.nlp as nlp
+
+    prob, w = small_fit.problem, _polished(small_fit)
+    _on_central(prob)  # (no switch from forward differences in between)
+    monkeypatch.setattr(prob, "near_tol", 0.0)
+    true_evaluate = prob.evaluate
+    rng = np.random.default_rng(0)
+
+    def noisy(x, jac=False):
+        out = true_evaluate(x, jac)
+        if jac:
+            Jr = out[2].copy()
+            Jr.data *= 1 + 0.2 * rng.standard_normal(Jr.data.size)
+            out = (out[0], out[1], Jr, out[3])
+        return out
+
+    monkeypatch.setattr(prob, "evaluate", noisy)
+    half = lambda x: 0.5 * float(np.sum(true_evaluate(x)[0] ** 2))  # noqa: E731
+    feas, moves, grad_d, _ = _gn_step(prob, w)
+    assert feas < prob.feas_tol and moves > prob.stat_tol  # (the tight rule cannot stop it)
+    res = prob.solve_gn(w)
+    assert (res["status"], res["success"]) == (nlp.STALLED, True)
+    assert res["iterations"] == nlp.FLAT_ITERS + 1
+    assert half(res["w"]) < half(w) + prob.stall_tol
+    monkeypatch.setattr(prob, "flat_iters", 0)
+    assert prob.solve_gn(w)["iterations"] > nlp.FLAT_ITERS + 1
+
+
 def _worse_away_from(w, prob, monkeypatch):
     """Every point but ``w`` evaluates 10 worse in ½χ²: every line search fails."""
     true_evaluate = prob.evaluate
@@ -828,8 +862,10 @@ def _on_central(prob):
 def _strict(prob, monkeypatch):
     """Only the tight convergence rule (FEAS_TOL, stat_tol): the tests that script the
     solver's other rules start from the fit's solution, which stops within NEAR_TOL and
-    would otherwise end their solves at once (tested on its own)."""
+    would otherwise end their solves at once, or once FLAT_ITERS iterations there have
+    not lowered ½χ² (each tested on its own)."""
     monkeypatch.setattr(prob, "near_tol", 0.0)
+    monkeypatch.setattr(prob, "flat_iters", 0)
 
 
 def test_a_solve_whose_line_search_always_fails_does_not_move(small_fit, monkeypatch):
@@ -1030,6 +1066,7 @@ def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, mon
     # end "Solve_Succeeded" at once), and damping shrinks the promise
     w[0] += 1e-3
     monkeypatch.setattr(prob, "feas_tol", 1.0)
+    monkeypatch.setattr(prob, "flat_iters", 0)  # (ended by FLAT_ITERS first at feas_tol 1)
     _worse_away_from(w, prob, monkeypatch)
     said = []
     monkeypatch.setattr(prob, "_stalled", lambda *a, **kw: said.append(kw) or (nlp.STALLED, True))
@@ -1050,6 +1087,7 @@ def test_a_line_search_that_fails_at_every_damping_is_judged_as_a_stall(small_fi
     prob, w, _ = _off_solution(small_fit)
     _on_central(prob)
     monkeypatch.setattr(prob, "feas_tol", 1.0)  # (the 1 nm violation alone would not stop it)
+    monkeypatch.setattr(prob, "flat_iters", 0)  # (ended by FLAT_ITERS first at feas_tol 1)
     _worse_away_from(w, prob, monkeypatch)
     for verdict, status in (((nlp.STALLED, True), nlp.STALLED), (("Stalled", False), "Line_Search_Failed")):
         said = []
@@ -1071,6 +1109,7 @@ def test_a_stall_reached_under_damping_is_judged_on_the_undamped_step(small_fit,
     _on_central(prob)
     w[0] += 1e-3
     monkeypatch.setattr(prob, "feas_tol", 1.0)
+    monkeypatch.setattr(prob, "flat_iters", 0)  # (ended by FLAT_ITERS first at feas_tol 1)
     true_evaluate = prob.evaluate
     seen = dict(jac=0)
 
