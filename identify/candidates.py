@@ -73,6 +73,18 @@ the score, not tighter. Measured on model-made data (8 runs, one worker), before
 stop: the refits that end not significant took 20 iterations (stick_threshold, 44 s),
 17 (rejuvenation, 34 s; load_offset, 26 s), 13 (topography, 30 s) to report
 p = 0.12-0.95; with it (two workers) they stop after 4-5 iterations, 9-13 s each."""
+BASIN_GIVE_UP_AFTER = 1
+"""The same stop after one iteration for each basin of a candidate solved from several
+(the topography's leading ripples, :func:`identify.diagnosis._starts`): the basins are
+alternatives, and the one the data favour gains from its first step. Measured on the
+8-run diagnosis benchmark (model-made data, one worker, 2026-11-25): six ripple basins
+took 4, 4, 4, 4, 11 and 4 iterations, 34 s, each ending unable to matter after its first
+step had gained ½χ² 6-8 and left ~0.4 a step; the one that took 11 wandered 1-2.6 nm
+off continuity, just outside GIVE_UP_FEAS, where the stop is not asked. So a basin is
+asked within :data:`BASIN_GIVE_UP_FEAS`: 10 nm, a ninth of the camera noise, moves a
+slip's prediction by 0.11 σ, its ½χ² by about that times its residual in σ, against a
+screen of ~10 units and the 3× margin on what the step still promises."""
+BASIN_GIVE_UP_FEAS = 1e-2
 # STALLED (from :mod:`identify.nlp`) is also the status of a refit whose last round of
 # iterations, at the iteration limit, gained less than ROUND_GAIN: its Δnll is known to
 # better than a likelihood unit, which is what the scores need, though the step test has
@@ -220,10 +232,17 @@ def run_candidate(task: CandidateTask) -> dict:
                         and _could_be_named(task, 2.0 * half_chi2 + const, prob.n_effective(),
                                             prob.n_observations()))
 
+        # several basins: each is dropped after its first iteration once it cannot reach
+        # the screen (BASIN_GIVE_UP_AFTER), not after GIVE_UP_AFTER as a single start is
+        several = len({kind[1] for _, kind, _ in todo}) > 1
+        if several:
+            prob.give_up = _give_up(task, prob, after=BASIN_GIVE_UP_AFTER)
+            prob.give_up_feas = BASIN_GIVE_UP_FEAS
         for w0, _, f0 in todo:
             sol = _solve_on(prob, w0, f0, nameable)
             if np.isfinite(sol["f"]) and (best is None or sol["f"] < best["f"]):
                 best = sol
+        prob.give_up, prob.give_up_feas = _give_up(task, prob), GIVE_UP_FEAS
         if best is None:
             raise ValueError("the model cannot be evaluated at any start (an arc or the trigger encoding "
                              "is not finite there)")
@@ -336,9 +355,10 @@ def _needed(task: CandidateTask, dk: int, n_obs: int) -> float:
     return max(float(stats.chi2.isf(task.screen_p, dk)), dk * math.log(max(n_obs, 2)))
 
 
-def _give_up(task: CandidateTask, prob):
-    """The solver's early stop for a candidate refit (:data:`GIVE_UP_AFTER`), or None
-    for the current model and a task that does not know the current χ²."""
+def _give_up(task: CandidateTask, prob, after: int = GIVE_UP_AFTER):
+    """The solver's early stop for a candidate refit (after ``after`` iterations,
+    :data:`GIVE_UP_AFTER`), or None for the current model and a task that does not know
+    the current χ²."""
     if task.effect is None or task.null_chi2 is None or task.null_n_eff is None:
         return None
     from .effects import get_effect
@@ -351,7 +371,7 @@ def _give_up(task: CandidateTask, prob):
     const = prob.chi2_constant()
 
     def stop(it: int, half_chi2: float, promised: float) -> bool:
-        if it <= GIVE_UP_AFTER:
+        if it <= after:
             return False
         best = task.null_chi2 - (2.0 * half_chi2 + const) + 2.0 * GIVE_UP_MARGIN * max(promised, 0.0)
         return best < need

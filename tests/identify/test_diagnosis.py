@@ -199,6 +199,8 @@ def test_a_refit_that_cannot_become_nameable_is_stopped():
     half = lambda gain: 0.5 * (1000.0 - 40.0 - gain)  # noqa: E731 (½ r·r after a χ² gain)
     it = GIVE_UP_AFTER + 1
     assert stop(it, half(1.0), 0.1) and not stop(GIVE_UP_AFTER, half(1.0), 0.1)
+    basin = _give_up(t, prob, after=1)  # a basin of several (BASIN_GIVE_UP_AFTER)
+    assert basin(2, half(1.0), 0.1) and not basin(1, half(1.0), 0.1)
     # 1 gained, and the promise could bring it to the threshold: go on
     assert not stop(it, half(1.0), (need - 1.0) / (2 * GIVE_UP_MARGIN) + 0.01)
     assert stop(it, half(1.0), (need - 1.0) / (2 * GIVE_UP_MARGIN) - 0.01)
@@ -534,9 +536,18 @@ def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, mo
         ends.append(out["f"])
         return out
 
-    monkeypatch.setattr(cand, "_solve_on", spy)
+    screens = []  # (the basins' early stop: after one iteration, asked within 10 nm)
+
+    def spy_screen(p, w0, f0, nameable=None):
+        half_null = 0.5 * (tasks[1].null_chi2 - p.chi2_constant())  # no gain at all
+        screens.append((p.give_up_feas, p.give_up(cand.BASIN_GIVE_UP_AFTER + 1, half_null, 0.0),
+                        p.give_up(cand.BASIN_GIVE_UP_AFTER, half_null, 0.0)))
+        return spy(p, w0, f0, nameable)
+
+    monkeypatch.setattr(cand, "_solve_on", spy_screen)
     out = cand.run_candidate(tasks[1])
     assert out["ok"] and len(solved) == 2 and solved[0] != solved[1]  # one start per basin
+    assert screens == [(cand.BASIN_GIVE_UP_FEAS, True, False)] * 2
     assert 0.5 * (out["chi2"] - prob.chi2_constant()) == pytest.approx(min(ends), rel=1e-9)
 
 
