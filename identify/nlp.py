@@ -99,7 +99,7 @@ MAX_SOC = 4  # second-order corrections tried for a rejected full step (Ipopt's 
 STALL_TOL = 0.01
 # A solve also ends, converged within tolerance (STALLED), once FLAT_ITERS iterations in a
 # row, accepted or rejected, at points feasible to feas_tol have not brought ½χ² down by
-# stall_tol from where it stood at the first of them: ½χ² is then known to stall_tol.
+# STALL_TOL from where it stood at the first of them: ½χ² is then known to STALL_TOL.
 # Why: there the Gauss–Newton model's promises are the arcs' Jacobian noise, not gains.
 # Measured on the 5-run speed benchmark (2026-11-25, its log): the fresh solve after
 # inserting 7 slips reached ½χ² 1122.5341 at iteration 17 (|g| 4e-8 µm), then spent
@@ -728,7 +728,7 @@ class Problem:
         in a row stops: ``Stalled_Within_Tolerance`` (a success) if the constraints hold
         to ``STALL_FEAS`` and the linearised problem's solution is within ``STALL_TOL``
         of ½χ² of the point reached (on the undamped step, if the last was damped), else
-        ``Stalled``. So is one whose ½χ² has not fallen by ``stall_tol`` in
+        ``Stalled``. So is one whose ½χ² has not fallen by ``STALL_TOL`` in
         ``FLAT_ITERS`` iterations, accepted or rejected, at points feasible to
         ``feas_tol`` (``Stalled_Within_Tolerance``). A solve whose line search finds no step even at the largest damping,
         or once no further damping could change the step (``ladder_reach``,
@@ -750,7 +750,10 @@ class Problem:
         status, success, it = "Maximum_Iterations_Exceeded", False, 0
         said = t0
         stalled = 0  # consecutive iterations that gained < stat_tol of merit
-        flat, flat_ref = 0, None  # iterations at feasible points since ½χ² last fell by stall_tol
+        flat, flat_ref = 0, None  # iterations at feasible points since ½χ² last fell by flat_tol
+        # (never looser than STALL_TOL: a candidate's stall_tol of a likelihood unit is for
+        # its Δnll, and a named candidate's estimates come from where its refit ends)
+        flat_tol = min(self.stall_tol, STALL_TOL)
         refreshed = False
         r, g = self.evaluate(w)
         for it in range(1, opts.max_iter + 1):
@@ -818,13 +821,13 @@ class Problem:
             if self.flat_iters and feas0 < feas_tol:
                 # (FLAT_ITERS) every iteration counts here, accepted or rejected
                 f_now = 0.5 * float(r0 @ r0)
-                if flat_ref is None or f_now < flat_ref - self.stall_tol:
+                if flat_ref is None or f_now < flat_ref - flat_tol:
                     flat_ref, flat = f_now, 0
                 else:
                     flat += 1
                     if flat >= self.flat_iters:
                         log.debug("GN it %d: ½χ² %.8g within %.2g of %.8g for %d iterations at |g| < %.0e: %s",
-                                  it, f_now, self.stall_tol, flat_ref, flat, feas_tol, STALLED)
+                                  it, f_now, flat_tol, flat_ref, flat, feas_tol, STALLED)
                         status, success = STALLED, True
                         break
             if self.give_up is not None and lm == 0 and feas0 < self.give_up_feas:

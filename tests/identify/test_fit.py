@@ -808,7 +808,7 @@ def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, 
     each time), so every step promises what the function does not give, as the arcs'
     Jacobian noise did in the 5-run speed benchmark's tail (16 iterations, ~100 s, for
     3e-4 of ½χ²). Four iterations, accepted or rejected, that do not lower ½χ² by
-    stall_tol end the solve as converged within tolerance; without the rule it goes on."""
+    STALL_TOL end the solve as converged within tolerance; without the rule it goes on."""
     import identify.nlp as nlp
 
     prob, w = small_fit.problem, _polished(small_fit)
@@ -832,7 +832,7 @@ def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, 
     res = prob.solve_gn(w)
     assert (res["status"], res["success"]) == (nlp.STALLED, True)
     assert res["iterations"] == nlp.FLAT_ITERS + 1
-    assert half(res["w"]) < half(w) + prob.stall_tol
+    assert half(res["w"]) < half(w) + nlp.STALL_TOL
     monkeypatch.setattr(prob, "flat_iters", 0)
     assert prob.solve_gn(w)["iterations"] > nlp.FLAT_ITERS + 1
 
