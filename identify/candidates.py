@@ -383,6 +383,15 @@ MAGNITUDE_MAX_ITER = 10
 """Iterations of the solve at the realistic magnitude. Measured (four bundled runs): a
 2 µN load offset, 40 % of the smallest load, left the continuity 0.07–0.3 µm off for 20
 iterations (Δnll ≈ 14 400, not a bound there), 27 s; it ends "not settled"."""
+MAGNITUDE_DECISIVE = 100.0
+"""Away from continuity (further than GIVE_UP_FEAS), where the early stop is not asked,
+the check at the magnitude still stops once its χ² excess, less 2 × GIVE_UP_MARGIN × what
+the step promises, exceeds this many times the quantile it is judged by: excluded, its
+Δnll a lower bound. Measured on the 8-run diagnosis benchmark (model-made data, no
+effect, 2026-11-25): held at 2 µN the load offset's solve wandered 0.06-0.14 µm off
+continuity at ½χ² 38 000-41 500 (the refit's 175) for its 10 iterations, the spring
+nonlinearity's at ~8400 with 3e-3-0.5 µm off, each ~8 s for "not settled"; past three
+iterations both were 1000s of quantiles above, with promises of 0.01-3500."""
 MAGNITUDE_MOVED_Z = 1.0
 MAGNITUDE_WIDER = math.sqrt(2.0)
 """A parameter is named as the partner of an effect the data cannot exclude at its
@@ -419,7 +428,9 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
     the parameters it moves or unpins (:data:`MAGNITUDE_WIDER`) are its partners (none:
     the data do not see it there). The solve stops as soon as it is within that
     quantile, or once even :data:`GIVE_UP_MARGIN` times what its step still promises
-    cannot bring it there (then its Δnll is a lower bound)."""
+    cannot bring it there (then its Δnll is a lower bound); away from continuity, where
+    that promise says less, only with :data:`MAGNITUDE_DECISIVE` times the quantile to
+    spare."""
     from scipy import stats
 
     name, value = task.magnitude
@@ -440,18 +451,23 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
             return True
         return it > GIVE_UP_AFTER and d - 2.0 * GIVE_UP_MARGIN * max(promised, 0.0) > need
 
+    def decisive(it: int, half_chi2: float, promised: float) -> bool:
+        # away from continuity only with MAGNITUDE_DECISIVE times the quantile to spare
+        d = 2.0 * half_chi2 + const - ref
+        return it > GIVE_UP_AFTER and d - 2.0 * GIVE_UP_MARGIN * max(promised, 0.0) > MAGNITUDE_DECISIVE * need
+
     w0 = np.array(w, float)
     w0[i] = target
-    give_up0, opts0 = prob.give_up, prob.opts
+    give_up0, far0, opts0 = prob.give_up, getattr(prob, "give_up_far", None), prob.opts
     try:
         # (the arcs may be resized: the refit's record has taken its own horizons already)
         if prob.E:
             w0 = prob.settle_arcs(w0)
-        prob.give_up = stop
+        prob.give_up, prob.give_up_far = stop, decisive
         prob.opts = replace(opts0, max_iter=min(opts0.max_iter, MAGNITUDE_MAX_ITER))
         sol = prob.solve(w0, fixed={i: target})
     finally:
-        prob.give_up, prob.opts = give_up0, opts0
+        prob.give_up, prob.give_up_far, prob.opts = give_up0, far0, opts0
     chi2_m = 2.0 * float(sol["f"]) + const
     dnll = 0.5 * (chi2_m - ref)
     # judged only at a point the solver vouches for: converged, or stopped by the rule

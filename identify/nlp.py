@@ -299,6 +299,9 @@ class Problem:
     near_tol = NEAR_TOL
     give_up_feas = GIVE_UP_FEAS  # the give_up callback is asked only this close to continuity (µm)
     flat_iters = FLAT_ITERS  # (0: the rule off)
+    # the same kind of callback, asked at any distance from continuity where give_up is not
+    # (identify.candidates._at_magnitude: a stop only when decisive)
+    give_up_far = None
 
     def __init__(self, runs: Sequence, model: Model, values: dict, opts):
         self.runs = list(runs)
@@ -830,8 +833,10 @@ class Problem:
                                   it, f_now, flat_tol, flat_ref, flat, feas_tol, STALLED)
                         status, success = STALLED, True
                         break
-            if self.give_up is not None and lm == 0 and feas0 < self.give_up_feas:
-                if self.give_up(it, 0.5 * float(r0 @ r0), -float(r0 @ dr + 0.5 * dr @ dr)):
+            if lm == 0 and (self.give_up is not None and feas0 < self.give_up_feas
+                            or self.give_up_far is not None):
+                ask = self.give_up if feas0 < self.give_up_feas and self.give_up is not None else self.give_up_far
+                if ask(it, 0.5 * float(r0 @ r0), -float(r0 @ dr + 0.5 * dr @ dr)):
                     status = GAVE_UP
                     break
             with np.errstate(divide="ignore", invalid="ignore"):

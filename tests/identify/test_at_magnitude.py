@@ -94,3 +94,48 @@ def test_better_there_than_its_own_refit_is_not_absorbed():
 def test_an_unconverged_solve_settles_nothing():
     out, _ = _check(980.0, status="Maximum_Iterations_Exceeded")
     assert out["absorbed"] is None and out["better"] is False
+
+
+class _FarProblem(_Problem):
+    """A solve that stays away from continuity: it asks ``give_up_far`` (as the solver
+    does there) at iteration 4 with the χ² excess ``excess`` and the promise ``promised``,
+    and stops if told to."""
+
+    give_up_far = None
+
+    def __init__(self, excess, promised):
+        super().__init__(1000.0 + excess)
+        self.promised, self.asked = promised, []
+
+    def solve(self, w0, fixed):
+        out = super().solve(w0, fixed)
+        from identify.candidates import GIVE_UP_AFTER
+
+        for it in (GIVE_UP_AFTER, GIVE_UP_AFTER + 1):
+            self.asked.append(self.give_up_far(it, 0.5 * self.chi2_at, self.promised))
+        out["status"] = "Stopped_Cannot_Matter" if self.asked[-1] else "Maximum_Iterations_Exceeded"
+        out["success"] = False
+        return out
+
+
+@pytest.mark.parametrize("spare, stops", [(1.0, True), (-1.0, False)])
+def test_far_from_continuity_it_stops_only_when_decisive(spare, stops):
+    """MAGNITUDE_DECISIVE: away from continuity the check stops (excluded, its Δnll a lower
+    bound) only once its χ² excess, less 2 × GIVE_UP_MARGIN × the promise, is beyond that
+    many quantiles; else it runs to its limit and settles nothing (measured: the load
+    offset held at 2 µN, ½χ² ~38 000 against 175, 0.06-0.14 µm off continuity for 10
+    iterations)."""
+    from identify.candidates import GIVE_UP_MARGIN, MAGNITUDE_DECISIVE
+
+    promised = 50.0
+    prob = _FarProblem(MAGNITUDE_DECISIVE * NEED + 2 * GIVE_UP_MARGIN * promised + spare, promised)
+    task = CandidateTask(effect="load_offset", runs=[], law="exponential", values={}, free=("A",),
+                         extra=("c_extra",), null_chi2=1001.0, magnitude=("c_extra", 2e-5))
+    w = prob.theta.to_scaled({"A": 0.0236, "c_extra": 0.0})
+    out = _at_magnitude(task, prob, w, 1000.0, {"A": dict(value=0.0236, stderr=0.0035)})
+    assert prob.asked == [False, stops]  # (never in the first GIVE_UP_AFTER iterations)
+    if stops:
+        assert out["absorbed"] is False and out["lower_bound"] is True
+    else:
+        assert out["absorbed"] is None
+    assert prob.give_up_far is None  # (the problem's own again)

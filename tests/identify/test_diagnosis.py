@@ -227,6 +227,24 @@ def test_the_solver_stops_when_told_it_cannot_matter(small_fit):
     assert all(p >= 0 for _, _, p in seen)  # a Gauss–Newton step never promises a loss
 
 
+def test_away_from_continuity_the_solver_asks_give_up_far(small_fit):
+    """give_up is asked only within give_up_feas of continuity; give_up_far (the check at
+    a candidate's realistic magnitude) anywhere else."""
+    from identify.nlp import GAVE_UP, GIVE_UP_FEAS
+
+    prob, w = small_fit.problem, small_fit.w.copy()
+    w[prob.i_x + prob.ev_prev[prob.E // 2] + 1] += 0.05  # a plateau 50 nm off
+    assert np.abs(prob.evaluate(w)[1]).max() > GIVE_UP_FEAS
+    near, far = [], []
+    prob.give_up = lambda it, half_chi2, promised: near.append(it) or False
+    prob.give_up_far = lambda it, half_chi2, promised: far.append(it) or True
+    try:
+        sol = prob.solve_gn(w)
+    finally:
+        prob.give_up = prob.give_up_far = None
+    assert sol["status"] == GAVE_UP and far == [1] and near == []
+
+
 def test_diagnosis_of_model_made_data_is_adequate(small_fit, tmp_path):
     res = diagnose(None, baseline=small_fit, options=DiagnosisOptions(effects=("drift", "step_size")))
     assert res.verdict == "adequate" and res.effects == []
