@@ -731,10 +731,10 @@ class Problem:
         in a row stops: ``Stalled_Within_Tolerance`` (a success) if the constraints hold
         to ``STALL_FEAS`` and the linearised problem's solution is within ``STALL_TOL``
         of ½χ² of the point reached (on the undamped step, if the last was damped), else
-        ``Stalled``. So is one whose ½χ² has not fallen by ``STALL_TOL`` in
-        ``FLAT_ITERS`` iterations, accepted or rejected, at points feasible to
-        ``feas_tol`` (``Stalled_Within_Tolerance``). A solve whose line search finds no step even at the largest damping,
-        or once no further damping could change the step (``ladder_reach``,
+        ``Stalled``. A solve whose ½χ² has not fallen by ``STALL_TOL`` in ``FLAT_ITERS``
+        iterations, accepted or rejected, at points feasible to ``feas_tol`` stops as
+        ``Stalled_Within_Tolerance``. A solve whose line search finds no step even at
+        the largest damping, or once no further damping could change the step (``ladder_reach``,
         :meth:`_damping_reach`), is judged the same way on its undamped step
         (``Stalled_Within_Tolerance``, else ``Line_Search_Failed``). A rejected step
         whose undamped Gauss–Newton step promises less than ``STALL_TOL`` at a point
@@ -833,12 +833,10 @@ class Problem:
                                   it, f_now, flat_tol, flat_ref, flat, feas_tol, STALLED)
                         status, success = STALLED, True
                         break
-            if lm == 0 and (self.give_up is not None and feas0 < self.give_up_feas
-                            or self.give_up_far is not None):
-                ask = self.give_up if feas0 < self.give_up_feas and self.give_up is not None else self.give_up_far
-                if ask(it, 0.5 * float(r0 @ r0), -float(r0 @ dr + 0.5 * dr @ dr)):
-                    status = GAVE_UP
-                    break
+            ask = self.give_up if self.give_up is not None and feas0 < self.give_up_feas else self.give_up_far
+            if lm == 0 and ask is not None and ask(it, 0.5 * float(r0 @ r0), -float(r0 @ dr + 0.5 * dr @ dr)):
+                status = GAVE_UP
+                break
             with np.errstate(divide="ignore", invalid="ignore"):
                 a_max = float(min(1.0, np.min(np.where(d < 0, (lbx - w) / d, np.inf)),
                                   np.min(np.where(d > 0, (ubx - w) / d, np.inf))))
