@@ -44,6 +44,7 @@ from .effects import EFFECTS, display, get_effect
 from .events import _jsonable  # NaN/inf -> null, numpy -> Python
 from .fit import FitError, FitOptions, fit
 from .heldout import folds_of
+from .nlp import NOT_DIFFERENTIABLE
 from .where import where, with_regime
 
 __all__ = ["DiagnosisOptions", "DiagnosisResult", "diagnose", "make_executor"]
@@ -765,7 +766,11 @@ def _score(results, base, opts, n_cand, fold_names=None) -> list:
         elif c.get("heldout_unverified_folds"):
             c["note"] += (f" (held-out gap: {c['heldout_unverified_folds']} fold(s) from the linear "
                           "leave-out step, which the model did not confirm there; their refit failed)")
-        if c.get("worse"):
+        if c.get("status") == NOT_DIFFERENTIABLE:
+            c["note"] = ("the refit could not start: where it began, the last bit of a parameter moves the "
+                         "residuals by more than their noise (the model is not differentiable there); no "
+                         "evidence; the values at its start: " + c["estimate_text"])
+        elif c.get("worse"):
             c["note"] = ("the refit ended worse than the current model (a local solution): no evidence; "
                          if not stopped else f"worse than the current model when its {stopped}: no evidence; "
                          ) + c["estimate_text"]

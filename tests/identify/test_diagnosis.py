@@ -1139,6 +1139,21 @@ def _not_significant(effect, estimates, at_magnitude, r2=0.009):
                 at_magnitude=at_magnitude)
 
 
+def test_a_refit_that_could_not_start_says_so():
+    """A law's refit that stopped at once because the model is not differentiable at its
+    start (identify.nlp.NOT_DIFFERENTIABLE; measured: the logistic law from the
+    exponential baseline) is no evidence, and not "a local solution" either."""
+    from identify.diagnosis import _score
+    from identify.nlp import NOT_DIFFERENTIABLE
+
+    est = dict(mu_max=dict(value=0.79, stderr=0.006), mu_min=dict(value=0.66, stderr=3e-18))
+    base = _not_significant(None, est, None)
+    law = dict(_not_significant("aging_logistic", est, None), status=NOT_DIFFERENTIABLE, chi2=1.2e9)
+    (c,) = _score([base, law], base, DiagnosisOptions(), 1)
+    assert not c["significant"] and not c["named"]
+    assert c["note"].startswith("the refit could not start") and "local solution" not in c["note"]
+
+
 def test_a_candidate_absorbed_at_its_realistic_magnitude_is_reported_confounded_with_what_absorbs_it():
     """The damping set's numbers (measured, 8 runs): the refit does not leave c_extra = 0,
     R² 0.009 with the model there, but held at 2e-5 N s/m it fits as well with A, μmin and

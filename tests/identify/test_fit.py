@@ -837,6 +837,34 @@ def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, 
     assert prob.solve_gn(w)["iterations"] > nlp.FLAT_ITERS + 1
 
 
+def test_a_start_where_a_parameter_is_not_differentiable_ends_at_once(small_fit, monkeypatch):
+    """NOT_DIFFERENTIABLE: μmax's column of the residuals' Jacobian 1e25 times its size,
+    so its last bit moves the residuals by ~1e11 σ (measured: a logistic-law refit from
+    the exponential baseline started at ∂(½χ²)/∂μmin = -4.5e22 and spent 13 rejected
+    rungs, 20 s, there). The solve stops at its first iteration where it began; the
+    fit's own start is 1e-10 of that away from the rule."""
+    import scipy.sparse as sp
+
+    import identify.nlp as nlp
+
+    prob, w = small_fit.problem, small_fit.w.copy()
+    Jr = prob.evaluate(w, jac=True)[2]
+    rough = np.sqrt((Jr.T @ Jr).diagonal()[: prob.n_theta]) * np.maximum(np.abs(w[: prob.n_theta]), 1) \
+        * np.finfo(float).eps
+    assert rough.max() < 1e-10
+    true_evaluate = prob.evaluate
+    scale = sp.diags(np.r_[1e25, np.ones(prob.n_w - 1)])
+
+    def steep(x, jac=False):
+        out = true_evaluate(x, jac)
+        return (*out[:2], (out[2] @ scale).tocsc(), out[3]) if jac else out
+
+    monkeypatch.setattr(prob, "evaluate", steep)
+    res = prob.solve_gn(w)
+    assert res["status"] == nlp.NOT_DIFFERENTIABLE and not res["success"] and res["iterations"] == 1
+    assert np.array_equal(res["w"], w)
+
+
 def _worse_away_from(w, prob, monkeypatch):
     """Every point but ``w`` evaluates 10 worse in ½χ²: every line search fails."""
     true_evaluate = prob.evaluate
