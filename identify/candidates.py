@@ -470,8 +470,9 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
         prob.give_up, prob.give_up_far, prob.opts = give_up0, far0, opts0
     chi2_m = 2.0 * float(sol["f"]) + const
     dnll = 0.5 * (chi2_m - ref)
-    # judged only at a point the solver vouches for: converged, or stopped by the rule
-    # above (which it asks only within GIVE_UP_FEAS of continuity); else not settled
+    # judged only at a point the solver vouches for: converged, or stopped by the rules
+    # above (``stop`` within GIVE_UP_FEAS of continuity, ``decisive`` anywhere, its point
+    # then perhaps far off continuity: the Δnll a lower bound by a wide margin); else not settled
     settled = (bool(sol.get("success")) or sol["status"] == GAVE_UP) and np.isfinite(dnll)
     # held at the magnitude and fitting *better* than its own refit by more than the
     # quantile: no parameter of the model stands in for it there; the refit ended in a

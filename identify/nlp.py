@@ -98,7 +98,7 @@ LADDER_STEP = 0.1
 MAX_SOC = 4  # second-order corrections tried for a rejected full step (Ipopt's max_soc)
 STALL_TOL = 0.01
 # A solve also ends, converged within tolerance (STALLED), once FLAT_ITERS iterations in a
-# row, accepted or rejected, at points feasible to feas_tol have not brought ½χ² down by
+# row, accepted or rejected, at points feasible to FEAS_TOL have not brought ½χ² down by
 # STALL_TOL from where it stood at the first of them: ½χ² is then known to STALL_TOL.
 # Why: there the Gauss–Newton model's promises are the arcs' Jacobian noise, not gains.
 # Measured on the 5-run speed benchmark (2026-11-25, its log): the fresh solve after
@@ -108,6 +108,10 @@ STALL_TOL = 0.01
 # rung after rung, and it ended at 1122.5338 (the stall rule's "within tolerance"). The
 # rejections count: each rung of the damping ladder there cost ~5 s of line search.
 FLAT_ITERS = 4
+# ... and it fires only on an undamped step whose own move of the model, ½‖Jᵣd‖², is below
+# this (10 × STALL_TOL; the tail above: 0.003-0.09), so a step that still promises much
+# and fails its line search is left to the damping ladder and the stall judgement
+FLAT_PROMISE = 0.1
 STALL_FEAS = 1e-4
 # Converged also (without waiting on the stall rule) when, at a point feasible to
 # STALL_FEAS, the undamped step would move the model's predictions by less than NEAR_TOL
@@ -122,8 +126,8 @@ STALL_FEAS = 1e-4
 NEAR_TOL = 1e-3
 STALLED = "Stalled_Within_Tolerance"
 GAVE_UP = "Stopped_Cannot_Matter"  # status of a solve its give_up callback stopped
-# status of a solve that starts where a parameter's last bit (its value times machine
-# epsilon, in scaled units) moves the residuals by more than one noise unit: the model is
+# status of a solve that starts where a free parameter's last bit (its scaled value, at
+# least 1, times machine epsilon) moves the residuals by more than one noise unit: the model is
 # not numerically differentiable there, and no step from a linearisation can be trusted.
 # Measured on the diagnosis benchmark's logistic-law refit from the exponential baseline
 # (2026-11-25): ∂(½χ²)/∂μmin = -4.5e22, the Gauss–Newton diagonal 8e39 against 1e7-3e8
@@ -307,8 +311,8 @@ class Problem:
     near_tol = NEAR_TOL
     give_up_feas = GIVE_UP_FEAS  # the give_up callback is asked only this close to continuity (µm)
     flat_iters = FLAT_ITERS  # (0: the rule off)
-    # the same kind of callback, asked at any distance from continuity where give_up is not
-    # (identify.candidates._at_magnitude: a stop only when decisive)
+    # the same kind of callback, asked wherever give_up is not (away from continuity, or
+    # when there is no give_up) (identify.candidates._at_magnitude: a stop only when decisive)
     give_up_far = None
 
     def __init__(self, runs: Sequence, model: Model, values: dict, opts):
@@ -707,8 +711,12 @@ class Problem:
         return res
 
     def _violation(self, w) -> float:
-        """max |g| at w (µm; the arcs there are remembered, so this costs little)."""
-        g = self.evaluate(w)[1]
+        """max |g| at w (µm; the arcs there are remembered, so this costs little); inf if
+        it cannot be evaluated."""
+        try:
+            g = self.evaluate(w)[1]
+        except Exception:  # (then no re-solve either: the solve's own result stands)
+            return float("inf")
         return float(np.abs(g).max()) if g.size else 0.0
 
     def solve_ipopt(self, w0, fixed=None) -> dict:
@@ -772,6 +780,7 @@ class Problem:
             r0, g0, grad = r, g, Jr.T @ r
             H = (Jr.T @ Jr).tocsc()
             rough = np.sqrt(H.diagonal()[:n_th]) * np.maximum(np.abs(w[:n_th]), 1.0) * np.finfo(float).eps
+            rough[fixed_mask[:n_th]] = 0.0  # (a held parameter takes no step)
             if it == 1 and n_th and rough.max() > 1.0:
                 # (NOT_DIFFERENTIABLE) the last bit of a parameter moves the residuals by
                 # more than their noise: no linearisation holds here
@@ -838,18 +847,23 @@ class Problem:
                 else:
                     status, success = "Solve_Succeeded", True
                 break
-            if self.flat_iters and feas0 < feas_tol:
-                # (FLAT_ITERS) every iteration counts here, accepted or rejected
+            if self.flat_iters and feas0 < min(feas_tol, FEAS_TOL):
+                # (FLAT_ITERS) every iteration counts here, accepted or rejected (a point
+                # taken again on central differences too: its new Jacobian is a new try)
                 f_now = 0.5 * float(r0 @ r0)
                 if flat_ref is None or f_now < flat_ref - flat_tol:
                     flat_ref, flat = f_now, 0
                 else:
                     flat += 1
-                    if flat >= self.flat_iters:
+                    # ... and only on an undamped step that itself promises little: the
+                    # gain the linearisation still sees is then below FLAT_PROMISE
+                    if flat >= self.flat_iters and lm == 0 and moves < FLAT_PROMISE:
                         log.debug("GN it %d: ½χ² %.8g within %.2g of %.8g for %d iterations at |g| < %.0e: %s",
                                   it, f_now, flat_tol, flat_ref, flat, feas_tol, STALLED)
                         status, success = STALLED, True
                         break
+            else:
+                flat, flat_ref = 0, None  # ("in a row": at feasible points only)
             ask = self.give_up if self.give_up is not None and feas0 < self.give_up_feas else self.give_up_far
             if lm == 0 and ask is not None and ask(it, 0.5 * float(r0 @ r0), -float(r0 @ dr + 0.5 * dr @ dr)):
                 status = GAVE_UP

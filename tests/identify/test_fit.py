@@ -837,6 +837,28 @@ def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, 
     assert prob.solve_gn(w)["iterations"] > nlp.FLAT_ITERS + 1
 
 
+def test_the_flat_tail_rule_leaves_a_step_that_still_promises_much_to_the_ladder(small_fit, monkeypatch):
+    """FLAT_PROMISE: at a feasible point with μmax off (held there, then freed), every
+    trial point worse: ½χ² does not fall for many iterations, but the undamped step
+    promises more than FLAT_PROMISE, so the flat-tail rule does not call it converged;
+    the solve ends as it does with the rule off (the damping ladder and its judgement)."""
+    import identify.nlp as nlp
+
+    prob, w = small_fit.problem, _polished(small_fit)
+    _on_central(prob)
+    monkeypatch.setattr(prob, "near_tol", 0.0)
+    w[0] += 1e-2
+    w = prob.solve_gn(w, fixed={0: w[0]})["w"]  # feasible, μmax held off
+    feas, moves, _, _ = _gn_step(prob, w)
+    assert feas < nlp.FEAS_TOL and moves > nlp.FLAT_PROMISE, (feas, moves)
+    _worse_away_from(w, prob, monkeypatch)
+    on = prob.solve_gn(w)
+    monkeypatch.setattr(prob, "flat_iters", 0)
+    off = prob.solve_gn(w)
+    assert on["iterations"] > nlp.FLAT_ITERS + 1
+    assert (on["status"], on["success"], on["iterations"]) == (off["status"], off["success"], off["iterations"])
+
+
 def test_a_start_where_a_parameter_is_not_differentiable_ends_at_once(small_fit, monkeypatch):
     """NOT_DIFFERENTIABLE: μmax's column of the residuals' Jacobian 1e25 times its size,
     so its last bit moves the residuals by ~1e11 σ (measured: a logistic-law refit from
