@@ -445,16 +445,17 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
     need = float(stats.chi2.isf(task.screen_p, 1))
     const = prob.chi2_constant()
 
-    def stop(it: int, half_chi2: float, promised: float) -> bool:
-        d = 2.0 * half_chi2 + const - ref
-        if d <= need:
-            return True
-        return it > GIVE_UP_AFTER and d - 2.0 * GIVE_UP_MARGIN * max(promised, 0.0) > need
+    def stopper(beyond: float, within: bool):
+        def stop(it: int, half_chi2: float, promised: float) -> bool:
+            d = 2.0 * half_chi2 + const - ref
+            if within and d <= need:
+                return True
+            return it > GIVE_UP_AFTER and d - 2.0 * GIVE_UP_MARGIN * max(promised, 0.0) > beyond
+        return stop
 
-    def decisive(it: int, half_chi2: float, promised: float) -> bool:
-        # away from continuity only with MAGNITUDE_DECISIVE times the quantile to spare
-        d = 2.0 * half_chi2 + const - ref
-        return it > GIVE_UP_AFTER and d - 2.0 * GIVE_UP_MARGIN * max(promised, 0.0) > MAGNITUDE_DECISIVE * need
+    # near continuity: within the quantile, or past it; away from continuity only past
+    # MAGNITUDE_DECISIVE times it (a point there that looks absorbed is no evidence)
+    stop, decisive = stopper(need, within=True), stopper(MAGNITUDE_DECISIVE * need, within=False)
 
     w0 = np.array(w, float)
     w0[i] = target

@@ -118,7 +118,8 @@ class _FarProblem(_Problem):
         return out
 
 
-@pytest.mark.parametrize("spare, stops", [(1.0, True), (-1.0, False)])
+@pytest.mark.parametrize("spare, stops", [(1.0, True), (-1.0, False),
+                                          (-100.0 * NEED - 300.0, False)])  # (looks absorbed: no evidence there)
 def test_far_from_continuity_it_stops_only_when_decisive(spare, stops):
     """MAGNITUDE_DECISIVE: away from continuity the check stops (excluded, its Δnll a lower
     bound) only once its χ² excess, less 2 × GIVE_UP_MARGIN × the promise, is beyond that
