@@ -424,7 +424,7 @@ def _after_insertion(prob, w_warm, fresh_start: dict, n_added: int, opts, restar
     each other. Why the warm one when the fresh looks wrong: in the 50-repeat
     calibration it was kept 3 times of 5, once by 881 of ½χ² (seed 30, the fresh solve
     Stalled at reduced χ² 1.55). Solving both always cost a second solve of the whole
-    problem: ~100 s of the 10-run fit (README, Speed)."""
+    problem: ~100 s of the 10-run fit (docs/engineering-notes.md, Speed)."""
     from .start import staged_start
 
     try:

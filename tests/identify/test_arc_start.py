@@ -79,7 +79,7 @@ def test_noiseless_solve_from_the_truth_stays_there(noiseless_runs):
     trace pins the start positions only through their ~1 nm effect on slip length: at
     the 46 pm floor a noiseless trace is read with, the solution fits the frames as well
     as the truth (plateau χ² 1.5 against 2.1), and at the 0.3 pm print precision the
-    simulator's and the arcs' integrators disagree by ~2 pm (README, "Limits")."""
+    simulator's and the arcs' integrators disagree by ~2 pm (README, "Known limits")."""
     prob, w = _problem(noiseless_runs, "aged")
     sol = prob.solve(w)
     est = prob.params(sol["w"][: prob.n_theta])

@@ -1385,7 +1385,7 @@ def test_recovery_90nm(coating):
         "the ambiguous-trigger pass) near a 0.23 nm violation of one slip's length (FOTAS_20.3_30_100, step 37), whose "
         "arc has a kink within 1e-5 of the solution (derivatives 0.98 and 1.33 in scaled mu_min either side; "
         "probably a slow slip grazing the stop speed); the estimates meet every target (reduced chi2 0.99); "
-        "still Line_Search_Failed with the arcs at reltol 1e-7 (7c20914); README 'Limits'"), strict=False)),
+        "still Line_Search_Failed with the arcs at reltol 1e-7 (7c20914); docs/engineering-notes.md, 'Limits'"), strict=False)),
     "OTS",
 ])
 def test_recovery_90nm_converges(coating):
