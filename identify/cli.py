@@ -215,6 +215,9 @@ def _add_fit_arguments(p, json_required: bool):
                    help="trials of the last mode-sequence repair, where the model's slip triggers "
                         "misfit (default: FitOptions.sequence_trials, 64; 0 turns it off)")
     p.add_argument("--solver", default="gauss-newton", choices=("gauss-newton", "ipopt"))
+    p.add_argument("--trigger", default="uniform", choices=("uniform", "interval"),
+                   help="trigger encoding: uniform residuals (default), or exact intervals solved "
+                        "last (consistent for noiseless data; not for diagnose)")
     p.add_argument("--profile", default=None, metavar="NAMES",
                    help="comma-separated free parameters to profile (likelihood profiles)")
     p.add_argument("--json", required=json_required, metavar="OUT.json")
@@ -248,7 +251,7 @@ def _fit_options(args):
     return FitOptions(law=args.law, free=free, fixed=_parse_params(args.fix, "--fix"),
                       bounds=_parse_bounds(args.bound), start=_parse_params(args.start, "--start"),
                       free_offset=args.free_offset, multistart=args.multistart, seed=args.seed,
-                      solver=args.solver,
+                      solver=args.solver, trigger=args.trigger,
                       **({} if args.sequence_trials is None else {"sequence_trials": args.sequence_trials}))
 
 
@@ -306,7 +309,7 @@ def _cmd_demo(args) -> int:
     out = Path(args.out)
     fit_args = argparse.Namespace(
         coating=args.coating, law="exponential", free=None, fix=["v_stick=1e-5"], bound=None, start=None,
-        free_offset=False, multistart=0, seed=None, solver="gauss-newton", profile=None,
+        free_offset=False, multistart=0, seed=None, solver="gauss-newton", trigger="uniform", profile=None,
         sequence_trials=None, json=str(out / "fit.json"), plots=str(out / "figures"))
     print(f"demo: fitting {data} (synthetic, made with v_stick = 1e-5 m/s; true values from the "
           f"{args.coating} preset shown beside the estimates)", file=sys.stderr)

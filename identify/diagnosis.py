@@ -348,6 +348,12 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
     fopts = fit_options or FitOptions()
     say = progress or (lambda m: log.info(m))
     t0 = time.perf_counter()
+    given = baseline.problem.opts if baseline is not None else fopts
+    if given.trigger != "uniform":
+        # its features (the static friction at each slip), held-out steps and candidate
+        # refits read the trigger residuals, which the interval encoding does not have
+        raise ValueError(f"trigger = {given.trigger!r}: the diagnosis needs the uniform trigger encoding "
+                         "(fit the baseline with trigger='uniform', the default)")
     if baseline is None:
         say("baseline fit")
         try:

@@ -21,7 +21,9 @@ Residuals (σ-normalised: the noise model is stated and the covariance follows f
       position within is uniform: residual √12·(position − φ_run), smooth in the
       parameters where the trigger rule itself is discrete (:func:`trigger_residual`);
       a run's first slip, whose contact comes from the unobserved initial state, gets
-      the uniform's √12·(s_e − ½);
+      the uniform's √12·(s_e − ½). With ``trigger="interval"`` none of these: the
+      position is bounded to [0, 1] instead (the flat likelihood the uniform stands in
+      for, consistent as the noise vanishes; :class:`identify.fit.FitOptions`);
     * creep runs (no resolvable slips): their steady elongation against the steady
       friction at the pull speed.
 
@@ -328,6 +330,17 @@ class Problem:
         self.give_up = None
         self._layout()
 
+    @property
+    def interval_triggers(self) -> bool:
+        """Triggers as the exact interval (bounds on the start positions), no residuals."""
+        return self.opts.trigger == "interval"
+
+    @property
+    def phases_free(self) -> bool:
+        """The runs' trigger phases are variables (``free_phase``; never with the interval,
+        where nothing refers to them)."""
+        return bool(self.opts.free_phase) and not self.interval_triggers
+
     # ---------------------------------------------------------------- layout
     def _layout(self):
         ev_runs = [r for r in self.runs if r.kind == "events"]
@@ -530,11 +543,12 @@ class Problem:
             z_before = self.law.rest(Y[1, pv].T, ca.DM(np.maximum(rest - 1 / self.ev_fp[nx], 0)), P, ops=ca)
             Pn = dict(P, k=ca.DM(self.ev_k[nx]), Nb=ca.DM(self.ev_Nb[nx]))
             s_pos = self.position(z_aged, x_prev[nx], e0[nx], Pn, ops=ca, z_before=z_before)
-            phi = w[self.i_phi : self.i_phi + self.n_phase]
-            k_of = np.array([self.phase_of_run[int(ri)] for ri in self.ev_run[nx]], int)
-            # (a 1x1 MX indexed by a list comes back as a row: force a column)
-            res.append(math.sqrt(12) * (s_pos - ca.reshape(phi[k_of.tolist()], -1, 1)))
-            res.append(math.sqrt(12) * (phi - 0.5))
+            if not self.interval_triggers:
+                phi = w[self.i_phi : self.i_phi + self.n_phase]
+                k_of = np.array([self.phase_of_run[int(ri)] for ri in self.ev_run[nx]], int)
+                # (a 1x1 MX indexed by a list comes back as a row: force a column)
+                res.append(math.sqrt(12) * (s_pos - ca.reshape(phi[k_of.tolist()], -1, 1)))
+                res.append(math.sqrt(12) * (phi - 0.5))
             g = x_um[self.ev_prev + 1] - x_um[self.ev_prev] - Y[0, :].T
             if self.n_s:
                 # shooting: each arc starts where the previous arc's end, aged over the
@@ -547,7 +561,8 @@ class Problem:
                 # as a row: force columns)
                 s_next = ca.reshape(s_all[self.ev_next.tolist()], -1, 1)
                 g = ca.vertcat(g, START_SCALE_UM * (s_next - ca.reshape(self._s_target, -1, 1)))
-                res.append(math.sqrt(12) * (ca.reshape(s_all[self.ev_firsts.tolist()], -1, 1) - 0.5))
+                if not self.interval_triggers:
+                    res.append(math.sqrt(12) * (ca.reshape(s_all[self.ev_firsts.tolist()], -1, 1) - 0.5))
         for r in self.creep_runs:
             Pr = dict(P, k=r.k, Nb=r.Nb)
             vp = r.fp * step
@@ -661,13 +676,17 @@ class Problem:
         lbx = np.full(self.n_w, -np.inf)
         ubx = np.full(self.n_w, np.inf)
         lbx[: self.n_theta], ubx[: self.n_theta] = self.theta.lo, self.theta.hi
-        if not self.opts.free_phase:
+        if not self.phases_free:
             # slips recur at the middle of the step interval on average (uniform phase)
             lbx[self.i_phi : self.i_s] = ubx[self.i_phi : self.i_s] = 0.5
         else:
             # a run's common phase lies inside the trigger interval: the interval
             # constraint itself, for what all its slips share
             lbx[self.i_phi : self.i_s], ubx[self.i_phi : self.i_s] = 0.0, 1.0
+        if self.interval_triggers:
+            # the slip happened at this step and not the one before: the capacity inside
+            # the step's interval, exactly
+            lbx[self.i_s : self.i_s + self.n_s], ubx[self.i_s : self.i_s + self.n_s] = 0.0, 1.0
         for i, v in (fixed or {}).items():
             lbx[i] = ubx[i] = v
         return lbx, ubx
@@ -1180,8 +1199,10 @@ class Problem:
         return float(sum(r.s_res / r.sigma**2 for r in self.runs if r.kind == "events"))
 
     def n_observations(self) -> int:
-        """Frames, slip triggers and one phase pseudo-observation per run, creep means."""
-        return int(sum(r.plateau_n.sum() + len(r.trigger_steps) if r.kind == "events" else 1
+        """Frames, slip triggers and one phase pseudo-observation per run, creep means
+        (with the interval encoding the triggers are bounds, not observations)."""
+        per_slip = 0 if self.interval_triggers else 1
+        return int(sum(r.plateau_n.sum() + per_slip * len(r.trigger_steps) if r.kind == "events" else 1
                        for r in self.runs))
 
     def dof(self) -> int:
@@ -1192,7 +1213,7 @@ class Problem:
         """Free dimensions: parameters, offsets, and per events run its first plateau,
         its trigger phase (free_phase) and its first slip's start (arc_start="aged"); the
         other plateaus and starts follow from the constraints."""
-        per_run = 1 + bool(self.opts.free_phase)
+        per_run = 1 + self.phases_free
         first_starts = len(self.ev_firsts) if self.n_s else 0
         return self.n_theta + self.n_off + per_run * sum(1 for r in self.runs if r.kind == "events") + first_starts
 
@@ -1202,13 +1223,14 @@ class Problem:
         p = self.P
         t0 = p + n_slope
         # phase rows exist with any slip; then the first slips' start positions
-        t1 = t0 + self.n_trig + (self.n_phase if self.E else 0) + (len(self.ev_firsts) if self.n_s else 0)
+        t1 = t0 if self.interval_triggers else \
+            t0 + self.n_trig + (self.n_phase if self.E else 0) + (len(self.ev_firsts) if self.n_s else 0)
         return dict(plateaus=(0, p), slopes=(p, t0), triggers=(t0, t1),
                     creep=(t1, t1 + len(self.creep_runs)))
 
     def trigger_runs(self) -> np.ndarray:
         """Run index of each trigger residual (slips, then one phase residual per run)."""
-        if not self.E:
+        if not self.E or self.interval_triggers:
             return np.zeros(0, int)
         phase_runs = sorted(self.phase_of_run, key=self.phase_of_run.get)
         first = self.ev_run[self.ev_firsts] if self.n_s else np.zeros(0, int)
@@ -1364,7 +1386,7 @@ class Problem:
         r, g, Jr, Jg = self.evaluate(w, jac=True)
         H = (Jr.T @ Jr).tocsc()
         fixed_idx = set(fixed_idx)
-        if not self.opts.free_phase:
+        if not self.phases_free:
             fixed_idx |= set(range(self.i_phi, self.i_s))
         keep = np.setdiff1d(np.arange(self.n_w), sorted(fixed_idx))
         Hk, Jgk = H[keep][:, keep], Jg[:, keep]
@@ -1404,12 +1426,15 @@ class Problem:
         ind = np.r_[np.arange(0, t0), np.arange(t1, len(r))]
         Ji = Jr[ind]
         ri = r[ind]
-        # (the first slips' starts are fixed by their own rows in the trigger group)
-        n_frames_fix = self.n_effective() - (len(self.ev_firsts) if self.n_s else 0)
+        # (the first slips' starts are fixed by their own rows in the trigger group, or,
+        # with the interval encoding, by the frames)
+        n_frames_fix = self.n_effective() - (len(self.ev_firsts) if self.n_s and not self.interval_triggers else 0)
         s2 = float(ri @ ri) / max(len(ri) - n_frames_fix, 1)
         A_ = np.asarray(Ji @ X)
         meat_part = (max(s2, 1.0) if frame_scale is None else frame_scale) * (A_.T @ A_)
         Jt = Jr[t0:t1]
+        if t1 == t0:  # the interval encoding: no trigger residual to add
+            return meat_part
         if mode == "cluster":
             runs = self.trigger_runs()
             scores = np.asarray(Jt.multiply(r[t0:t1][:, None]).tocsr().toarray())  # per-residual scores

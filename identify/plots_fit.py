@@ -128,6 +128,9 @@ def plot_residuals(result, axes=None):
     t0, t1 = grp["triggers"]
     axes[1].hist(r[t0:t1], bins=30, color="C1")
     axes[1].set(xlabel="trigger residual (σ)", ylabel="count", title="slip triggers")
+    if prob.interval_triggers:
+        axes[1].text(0.5, 0.5, "interval encoding:\nno trigger residuals", transform=axes[1].transAxes,
+                     ha="center", va="center", fontsize=8, color="0.4")
     for ax in axes:
         ax.axvline(0, color="0.7", lw=0.5) if ax is axes[1] else ax.axhline(0, color="0.7", lw=0.5)
     return axes

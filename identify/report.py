@@ -132,6 +132,8 @@ class FitResult:
             f"constraints, {self.nlp_size['residuals']} residuals",
             f"    solver             = {s['method']}: {s['status']} after {s['iterations']} "
             f"iterations, {s['wall_time_s']:.2f} s",
+            *(["    triggers           = exact intervals (after the uniform encoding's fit); no trigger "
+               "residuals in the chi-square or the covariance"] if s.get("trigger") == "interval" else []),
             f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved, "
             f"{s.get('slips_inserted', 0)} missed slip(s) inserted, "
             f"{s.get('slips_removed', 0)} spurious slip(s) removed by the fit",
@@ -345,7 +347,8 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
                     slips_removed=int(best.get("slips_removed", 0)),
                     restarts=list(best.get("restarts", [])),
                     method=("Gauss-Newton SQP (Gauss-Newton Hessian, l1-merit line search)"
-                            if prob.opts.solver == "gauss-newton" else "Ipopt (Gauss-Newton Hessian)")),
+                            if prob.opts.solver == "gauss-newton" else "Ipopt (Gauss-Newton Hessian)"),
+                    trigger=prob.opts.trigger),
         multistart=dict(starts=len(results), best_found=found, costs=[float(x["f"]) for x in results]),
         runs=runs,
         timing=dict(total_s=float(wall_s), arc_s=c["arc_s"], jac_s=c["jac_s"], arc_calls=c["arc_calls"],

@@ -68,6 +68,45 @@ def test_slip_lengths_at_the_truth(noiseless_runs, arc_start, worst_nm):
         assert prob.n_w == prob.i_s
 
 
+@pytest.fixture(scope="module")
+def exact_traces():
+    """Noiseless traces simulated at tolerance 1e-9 (slip lengths exact to far below the
+    arcs' ~0.1 pm): noiseless data should be exact, and at the simulator's default
+    tolerance (1e-5) they carry ~1 pm of integration error, which alone moved the
+    estimates by ~2e-3 (measured: −2.0e-3 … +2.2e-3 with either trigger encoding)."""
+    out = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for k, nb, fp in [(2.13, 5, 100), (20.3, 30, 30)]:
+            r = simulate("FOTAS", spring_constant_N_per_m=k, normal_load_uN=nb, step_frequency_Hz=fp,
+                         travel_um=15, stick_speed_m_per_s=V_STICK,
+                         options=SimulationOptions(record=False, reltol=1e-9, abstol=1e-11))
+            out.append(r.sample(noise_nm=0.0, seed=0, name=f"k{k:g}"))
+    return out
+
+
+def test_noiseless_data_recover_every_parameter_to_1e4(exact_traces):
+    """Issue target: noiseless data recover every free parameter to 1e-4 relative. From a
+    start 10 % off (each parameter pushed the way that makes the fit work hardest), the
+    interval encoding of the triggers does (measured: 4e-5 at most, τ's); the uniform
+    encoding, a Gaussian stand-in for the interval that pulls every trigger towards its
+    run's phase, stays biased (measured −2.3e-3 in μmax, −3.8e-3 in τ) — on noisy data
+    that pull is small beside the frames' noise. (From 20 % off, with the staged start, this
+    two-run set is not fitted by either encoding: the solve ends far off, μmax +270 %.)"""
+    from identify import fit
+
+    start = dict(mu_max=TRUTH["mu_max"] / 1.1, mu_min=TRUTH["mu_min"] * 1.1, tau=TRUTH["tau"] * 1.1,
+                 A=TRUTH["A"] * 1.1)
+    err = {}
+    for trigger in ("uniform", "interval"):
+        res = fit(exact_traces, coating="FOTAS", options=FitOptions(
+            fixed={"v_stick": V_STICK}, start=start, staged_start=False, trigger=trigger))
+        assert res.solver["success"], res.solver["status"]
+        err[trigger] = {n: abs(res.parameters[n].value / TRUTH[n] - 1) for n in start}
+    assert max(err["interval"].values()) < 1e-4, err
+    assert max(err["uniform"].values()) > 1e-3, err  # the bias the interval removes
+
+
 @pytest.mark.slow
 def test_noiseless_solve_from_the_truth_stays_there(noiseless_runs):
     """The solver started at the truth on noiseless data. Measured: the aged start stays
@@ -78,13 +117,14 @@ def test_noiseless_solve_from_the_truth_stays_there(noiseless_runs):
     uniform-phase residuals cost less a little away from the truth, and a noiseless
     trace pins the start positions only through their ~1 nm effect on slip length: at
     the 46 pm floor a noiseless trace is read with, the solution fits the frames as well
-    as the truth (plateau χ² 1.5 against 2.1), and at the 0.3 pm print precision the
-    simulator's and the arcs' integrators disagree by ~2 pm (README, "Known limits")."""
+    as the truth (plateau χ² 1.5 against 2.1), and at the simulator's default tolerance
+    its slip lengths and the arcs' disagree by ~1-2 pm. Both together keep the uniform
+    encoding ~2e-3 off; exact data and the interval encoding meet 1e-4
+    (:func:`test_noiseless_data_recover_every_parameter_to_1e4`)."""
     prob, w = _problem(noiseless_runs, "aged")
     sol = prob.solve(w)
     est = prob.params(sol["w"][: prob.n_theta])
     err = {n: abs(est[n] / TRUTH[n] - 1) for n in prob.theta.names}
     assert sol["success"], sol["status"]
     assert max(err.values()) < 1e-2, err
-    if max(err.values()) > 1e-4:
-        pytest.xfail(f"issue target 1e-4 relative not met: {err}")
+

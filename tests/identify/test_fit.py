@@ -1307,18 +1307,60 @@ def test_start_takes_the_reduced_analysis_only_where_it_determines_it(monkeypatc
     (dict(arc_jacobian="backward"), "arc_jacobian"),
     (dict(law="power"), "power"),
     (dict(covariance="sandwich"), "robust', 'cluster' or 'model"),
+    (dict(trigger="exact"), "'uniform' or 'interval'"),
+    (dict(trigger="interval", arc_start="mid"), "needs arc_start = 'aged'"),
 ])
 def test_bad_options(kwargs, match):
     with pytest.raises(ValueError, match=match):
         FitOptions(**kwargs)
 
 
+def test_interval_triggers_are_bounds_not_residuals(small_traces):
+    """The interval encoding drops every trigger row (a residual per slip, a phase row per
+    run, a first-start row per run), bounds each arc's start position to its interval,
+    holds the phases, and counts no trigger as an observation; the rest of the NLP is the
+    same problem (variables, constraints, frames)."""
+    runs, _, coating = prepare_runs(small_traces)
+    model = Model(get_law("exponential"))
+    values = dict(model.defaults(parameter_set(coating, {"v_stick": V_STICK})))
+    probs = {}
+    for trigger in ("uniform", "interval"):
+        p = Problem([_run_data(ev) for ev in runs], model, values,
+                    FitOptions(fixed={"v_stick": V_STICK}, trigger=trigger)).build()
+        probs[trigger] = (p, p.initial_w({"mu_max": 0.75, "mu_min": 0.5, "tau": 0.08, "A": 0.012}))
+    (u, wu), (i, wi) = probs["uniform"], probs["interval"]
+    n_runs = len(runs)
+    assert (i.n_w, i.n_g) == (u.n_w, u.n_g)
+    assert i.n_r == u.n_r - (u.n_trig + n_runs + n_runs)
+    t0, t1 = i.residual_groups()["triggers"]
+    assert t0 == t1 and len(i.trigger_runs()) == 0
+    assert i.n_observations() == u.n_observations() - i.E
+    lo, hi = i.bounds()
+    s = slice(i.i_s, i.i_s + i.n_s)
+    assert np.all(lo[s] == 0.0) and np.all(hi[s] == 1.0)
+    assert np.all(lo[i.i_phi : i.i_s] == hi[i.i_phi : i.i_s])
+    # the frames' rows are the same rows
+    ru, ri = u.residuals(wu), i.residuals(wi)
+    a, b = u.residual_groups()["plateaus"]
+    np.testing.assert_allclose(ri[a:b], ru[a:b], rtol=0, atol=1e-12)
+    # and the covariance of the interval problem comes from the frames alone
+    C = i.covariance(wi)
+    assert np.all(np.isfinite(np.diag(C)[: i.n_theta]))
+
+
 # ----------------------------------------------------------------------------- CLI
-def test_cli_fit_writes_json(small_traces, tmp_path, capsys):
+@pytest.fixture(scope="module")
+def small_data(small_traces, tmp_path_factory):
+    """The two small runs as a folder of trace files."""
+    d = tmp_path_factory.mktemp("data")
     for tr in small_traces:
-        tr.write(tmp_path / "data" / tr.name)
+        tr.write(d / tr.name)
+    return str(d)
+
+
+def test_cli_fit_writes_json(small_data, tmp_path, capsys):
     out = tmp_path / "fit.json"
-    code = cli_main(["fit", str(tmp_path / "data"), "--fix", "v_stick=1e-5", "--free", "mu_max,mu_min",
+    code = cli_main(["fit", small_data, "--fix", "v_stick=1e-5", "--free", "mu_max,mu_min",
                      "--json", str(out)])
     assert code == 0
     js = json.loads(out.read_text())
@@ -1339,6 +1381,19 @@ def test_cli_fit_negative_sequence_trials_exits_2(tmp_path, capsys):
     code = cli_main(["fit", str(tmp_path), "--sequence-trials", "-1", "--json", str(tmp_path / "o.json")])
     err = capsys.readouterr().err
     assert code == 2 and "sequence_trials" in err and "Traceback" not in err
+
+
+def test_cli_trigger_interval_fits_and_the_diagnosis_refuses_it(small_data, tmp_path, capsys):
+    out = tmp_path / "fit.json"
+    code = cli_main(["fit", small_data, "--fix", "v_stick=1e-5", "--trigger", "interval",
+                     "--json", str(out)])
+    assert code == 0 and json.loads(out.read_text())["solver"]["trigger"] == "interval"
+    assert "exact intervals" in capsys.readouterr().out
+    code = cli_main(["diagnose", small_data, "--fix", "v_stick=1e-5", "--trigger", "interval",
+                     "--json", str(tmp_path / "d.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and "trigger = 'interval'" in err and "uniform" in err and "Traceback" not in err
+    assert not (tmp_path / "d.json").exists()
 
 
 def test_cli_fit_unknown_parameter_exits_2(tmp_path, capsys):
