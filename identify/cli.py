@@ -216,8 +216,8 @@ def _add_fit_arguments(p, json_required: bool):
                         "misfit (default: FitOptions.sequence_trials, 64; 0 turns it off)")
     p.add_argument("--solver", default="gauss-newton", choices=("gauss-newton", "ipopt"))
     p.add_argument("--trigger", default="uniform", choices=("uniform", "interval"),
-                   help="trigger encoding: uniform residuals (default), or exact intervals solved "
-                        "last (consistent for noiseless data; not for diagnose)")
+                   help="trigger encoding: uniform residuals (default), or intervals solved last "
+                        "(for noiseless data, where the uniform's pull biases by ~2e-3; not for diagnose)")
     p.add_argument("--profile", default=None, metavar="NAMES",
                    help="comma-separated free parameters to profile (likelihood profiles)")
     p.add_argument("--json", required=json_required, metavar="OUT.json")

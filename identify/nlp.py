@@ -684,8 +684,9 @@ class Problem:
             # constraint itself, for what all its slips share
             lbx[self.i_phi : self.i_s], ubx[self.i_phi : self.i_s] = 0.0, 1.0
         if self.interval_triggers:
-            # the slip happened at this step and not the one before: the capacity inside
-            # the step's interval, exactly
+            # the slip happened at this step: the capacity inside the step's force
+            # interval (the plain one: the aging during the step, which position()
+            # subtracts from the lower end, would make the bound depend on the parameters)
             lbx[self.i_s : self.i_s + self.n_s], ubx[self.i_s : self.i_s + self.n_s] = 0.0, 1.0
         for i, v in (fixed or {}).items():
             lbx[i] = ubx[i] = v

@@ -132,7 +132,7 @@ class FitResult:
             f"constraints, {self.nlp_size['residuals']} residuals",
             f"    solver             = {s['method']}: {s['status']} after {s['iterations']} "
             f"iterations, {s['wall_time_s']:.2f} s",
-            *(["    triggers           = exact intervals (after the uniform encoding's fit); no trigger "
+            *(["    triggers           = intervals (after the uniform encoding's fit); no trigger "
                "residuals in the chi-square or the covariance"] if s.get("trigger") == "interval" else []),
             f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved, "
             f"{s.get('slips_inserted', 0)} missed slip(s) inserted, "

@@ -102,6 +102,7 @@ def test_noiseless_data_recover_every_parameter_to_1e4(exact_traces):
         res = fit(exact_traces, coating="FOTAS", options=FitOptions(
             fixed={"v_stick": V_STICK}, start=start, staged_start=False, trigger=trigger))
         assert res.solver["success"], res.solver["status"]
+        assert res.solver["trigger"] == trigger, res.start_source  # the interval solve kept
         err[trigger] = {n: abs(res.parameters[n].value / TRUTH[n] - 1) for n in start}
     assert max(err["interval"].values()) < 1e-4, err
     assert max(err["uniform"].values()) > 1e-3, err  # the bias the interval removes

@@ -1387,13 +1387,39 @@ def test_cli_trigger_interval_fits_and_the_diagnosis_refuses_it(small_data, tmp_
     out = tmp_path / "fit.json"
     code = cli_main(["fit", small_data, "--fix", "v_stick=1e-5", "--trigger", "interval",
                      "--json", str(out)])
-    assert code == 0 and json.loads(out.read_text())["solver"]["trigger"] == "interval"
-    assert "exact intervals" in capsys.readouterr().out
+    js = json.loads(out.read_text())
+    # (on these noisy runs the interval re-solve may not converge and is then not kept:
+    # either way the start line says what became of it)
+    assert code == 0 and "interval" in js["start"]
+    assert (js["solver"]["trigger"] == "interval") != ("not kept" in js["start"])
+    capsys.readouterr()
     code = cli_main(["diagnose", small_data, "--fix", "v_stick=1e-5", "--trigger", "interval",
                      "--json", str(tmp_path / "d.json")])
     err = capsys.readouterr().err
     assert code == 2 and "trigger = 'interval'" in err and "uniform" in err and "Traceback" not in err
     assert not (tmp_path / "d.json").exists()
+
+
+@pytest.mark.parametrize("failure", ["raises", "stalls"])
+def test_an_interval_resolve_that_fails_keeps_the_uniform_fit(small_traces, monkeypatch, failure):
+    """The interval encoding's last solve is an extra: where it fails or does not
+    converge (measured on noisy runs: `Stalled`, standard errors of 1000 %), the finished
+    uniform fit is the result, and the report's start line says why."""
+    solve = Problem.solve
+
+    def broken(self, w0, fixed=None):
+        if not self.interval_triggers:
+            return solve(self, w0, fixed)
+        if failure == "raises":
+            raise RuntimeError("the KKT system is singular")
+        return dict(solve(self, w0, fixed), status="Stalled", success=False)
+
+    monkeypatch.setattr(Problem, "solve", broken)
+    res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}, trigger="interval"))
+    assert res.solver["trigger"] == "uniform" and res.solver["success"]
+    assert "not kept" in res.start_source and ("singular" in res.start_source if failure == "raises"
+                                               else "Stalled" in res.start_source)
+    assert not res.problem.interval_triggers
 
 
 def test_cli_fit_unknown_parameter_exits_2(tmp_path, capsys):
