@@ -332,7 +332,8 @@ class Problem:
 
     @property
     def interval_triggers(self) -> bool:
-        """Triggers as the exact interval (bounds on the start positions), no residuals."""
+        """Triggers as the step's force interval (bounds on the start positions), no
+        trigger residuals (``FitOptions.trigger = "interval"``)."""
         return self.opts.trigger == "interval"
 
     @property

@@ -18,16 +18,22 @@ V_STICK = 1e-5
 TRUTH = dict(parameter_set("FOTAS"), v_stick=V_STICK)
 
 
-@pytest.fixture(scope="module")
-def noiseless_runs():
+def _noiseless_traces(**tolerances):
+    """Two noiseless 15 µm runs (the simulator's tolerances as given)."""
     out = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for k, nb, fp in [(2.13, 5, 100), (20.3, 30, 30)]:
             r = simulate("FOTAS", spring_constant_N_per_m=k, normal_load_uN=nb, step_frequency_Hz=fp,
-                         travel_um=15, stick_speed_m_per_s=V_STICK, options=SimulationOptions(record=False))
-            out.append(_run_data(extract_events(r.sample(noise_nm=0.0, seed=0, name=f"k{k:g}"))))
+                         travel_um=15, stick_speed_m_per_s=V_STICK,
+                         options=SimulationOptions(record=False, **tolerances))
+            out.append(r.sample(noise_nm=0.0, seed=0, name=f"k{k:g}"))
     return out
+
+
+@pytest.fixture(scope="module")
+def noiseless_runs():
+    return [_run_data(extract_events(tr)) for tr in _noiseless_traces()]
 
 
 def _problem(runs, arc_start):
@@ -74,15 +80,7 @@ def exact_traces():
     arcs' ~0.1 pm): noiseless data should be exact, and at the simulator's default
     tolerance (1e-5) they carry ~1 pm of integration error, which alone moved the
     estimates by ~2e-3 (measured: −2.0e-3 … +2.2e-3 with either trigger encoding)."""
-    out = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        for k, nb, fp in [(2.13, 5, 100), (20.3, 30, 30)]:
-            r = simulate("FOTAS", spring_constant_N_per_m=k, normal_load_uN=nb, step_frequency_Hz=fp,
-                         travel_um=15, stick_speed_m_per_s=V_STICK,
-                         options=SimulationOptions(record=False, reltol=1e-9, abstol=1e-11))
-            out.append(r.sample(noise_nm=0.0, seed=0, name=f"k{k:g}"))
-    return out
+    return _noiseless_traces(reltol=1e-9, abstol=1e-11)
 
 
 def test_noiseless_data_recover_every_parameter_to_1e4(exact_traces):
