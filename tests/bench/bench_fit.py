@@ -4,6 +4,7 @@ they print what they measure.
     python tests/bench/bench_fit.py calibration --repeats 50 [--workers 2] [--jitter-load 0.05]
         [--record cal.jsonl] [--seeds LO-HI]
     python tests/bench/bench_fit.py speed [--runs 2,5,10] [--steps 2000]
+    python tests/bench/bench_fit.py summary cal.jsonl
 
 calibration: each repeat simulates the design (the same noiseless runs every time), draws new 90 nm
 camera noise (seed = repeat), fits from a start 20 % off, and records whether each 95 %
@@ -163,13 +164,42 @@ def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitt
             print(f"\r  repeat {len(rows)}/{repeats} done (seed {futures[fut]}, "
                   f"{time.perf_counter() - t0:.0f} s)", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
-    rows.sort(key=lambda r: r["seed"])
+    summary = summarize(rows, coating, travel_um, jitter, workers)
+    return dict(coating=coating, repeats=repeats, travel_um=travel_um, conditions=CAL_CONDITIONS,
+                jitter_load=jitter, summary=summary, rows=rows)
+
+
+def coverage_range(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Clopper–Pearson range of a coverage seen k times in n: what the repeats can tell
+    apart. 50 of 50 is [0.929, 1], which holds the target band 90-98 %: a coverage
+    measured on 50 repeats misses the band only when its whole range lies outside it."""
+    from scipy import stats
+
+    a = (1 - level) / 2
+    lo = stats.beta.ppf(a, k, n - k + 1) if k > 0 else 0.0
+    hi = stats.beta.ppf(1 - a, k + 1, n - k) if k < n else 1.0
+    return float(lo), float(hi)
+
+
+def _band(k: int, n: int) -> str:
+    lo, hi = coverage_range(k, n)
+    return f"{k}/{n}, {100 * lo:.0f}-{100 * hi:.0f} %"
+
+
+def summarize(rows: list, coating: str, travel_um: float, jitter: float, workers: int | None = None) -> dict:
+    """Print the calibration's table from its repeats (fitted now, or read from a record
+    file by ``summary``) and return it per parameter."""
+    truth = _truth(coating)
+    rows = sorted(rows, key=lambda r: r["seed"])
+    repeats = len(rows)
     ok = [r for r in rows if "error" not in r]
     summary = {}
     print(f"calibration: {coating}, {len(CAL_CONDITIONS)} runs x {travel_um:g} µm, 90 nm, start 20 % off"
           + (f", loads jittered ±{100 * jitter:g} %" if jitter else "")
           + f"; {len(ok)}/{repeats} repeats fitted ({sum(r['success'] for r in ok)} converged)")
-    print(f"  {'param':8} {'coverage':>9} {'mean err':>9} {'sd(est)':>9} {'mean se':>9} {'sd/se':>6} {'med z':>6}")
+    print("  (coverage: k of n repeats and its 95 % Clopper-Pearson range)")
+    print(f"  {'param':8} {'coverage':>9} {'k/n, range':>16} {'mean err':>9} {'sd(est)':>9} {'mean se':>9} "
+          f"{'sd/se':>6} {'med z':>6}")
     for n in FREE:
         v = np.array([r[n]["value"] for r in ok])
         se = np.array([r[n]["stderr"] if r[n]["stderr"] is not None else np.nan for r in ok], float)
@@ -181,9 +211,11 @@ def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitt
                           mean_rel_stderr=float(np.nanmean(se / truth[n])),
                           median_z=float(np.nanmedian(z)) if len(ok) else None)
         s = summary[n]
-        print(f"  {n:8} {100 * s['coverage']:8.0f}% {100 * s['mean_rel_error']:+8.2f}% "
-              f"{100 * (s['sd_rel'] or np.nan):8.2f}% {100 * s['mean_rel_stderr']:8.2f}% "
-              f"{(s['sd_rel'] or np.nan) / s['mean_rel_stderr']:6.2f} {s['median_z'] or np.nan:+6.2f}")
+        s["covered"], s["coverage_range"] = int(cover.sum()), coverage_range(int(cover.sum()), len(ok))
+        print(f"  {n:8} {100 * s['coverage']:8.0f}% {_band(s['covered'], len(ok)):>16} "
+              f"{100 * s['mean_rel_error']:+8.2f}% {100 * (s['sd_rel'] or np.nan):8.2f}% "
+              f"{100 * s['mean_rel_stderr']:8.2f}% {(s['sd_rel'] or np.nan) / s['mean_rel_stderr']:6.2f} "
+              f"{s['median_z'] or np.nan:+6.2f}")
     have = [r for r in ok if all("by_covariance" in r[n] for n in FREE)]
     if have:
         print(f"  coverage by covariance ({len(have)} repeats; sd(est)/median se):")
@@ -191,15 +223,17 @@ def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitt
             cells = []
             for n in FREE:
                 bc = [r[n]["by_covariance"][mode] for r in have]
-                cov = np.mean([b["ci95"] is not None and b["ci95"][0] <= truth[n] <= b["ci95"][1] for b in bc])
+                hits = [b["ci95"] is not None and b["ci95"][0] <= truth[n] <= b["ci95"][1] for b in bc]
+                cov = np.mean(hits)
                 se = np.array([b["stderr"] if b["stderr"] is not None else np.nan for b in bc], float)
                 sd = np.std([r[n]["value"] for r in have], ddof=1) if len(have) > 1 else np.nan
-                cells.append(f"{n} {100 * cov:3.0f}% ({sd / np.nanmedian(se):4.2f})")
+                lo, hi = coverage_range(int(np.sum(hits)), len(hits))
+                cells.append(f"{n} {100 * cov:3.0f}% [{100 * lo:.0f}-{100 * hi:.0f}] ({sd / np.nanmedian(se):4.2f})")
                 summary[n].setdefault("coverage_by_covariance", {})[mode] = float(cov)
             print(f"    {mode:8} " + "  ".join(cells))
     walls = [r["wall_s"] for r in ok]
     if walls:
-        print(f"  time per fit: median {np.median(walls):.1f} s (workers {workers})")
+        print(f"  time per fit: median {np.median(walls):.1f} s" + (f" (workers {workers})" if workers else ""))
     # does the second solve of a suspect solution ever pay? (it costs a third of a stall's time)
     started = [r for r in ok if "start" in r]
     again = [r for r in started if "solved again" in r["start"]]
@@ -210,8 +244,28 @@ def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitt
     errors = [r for r in rows if "error" in r]
     for r in errors:
         print(f"  repeat {r['seed']} failed: {r['error']}")
-    return dict(coating=coating, repeats=repeats, travel_um=travel_um, conditions=CAL_CONDITIONS,
-                jitter_load=jitter, summary=summary, rows=rows)
+    return summary
+
+
+def summary_of_record(record: str) -> dict:
+    """The calibration table of every context a record file holds (its repeats as they
+    were fitted, whatever the code is now): what ``summary FILE`` prints."""
+    groups: dict = {}
+    with open(record) as f:
+        for line in f:
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError:  # a line cut by a stop
+                continue
+            ctx = row.get("context") or {}
+            groups.setdefault(json.dumps(ctx, sort_keys=True), {})[row["seed"]] = row
+    out = []
+    for key, by_seed in groups.items():
+        ctx = json.loads(key)
+        print(f"{record}: {len(by_seed)} repeat(s) with fit options {ctx.get('fit_options', '?')}")
+        out.append(dict(context=ctx, summary=summarize(list(by_seed.values()), ctx.get("coating", "FOTAS"),
+                                                     ctx.get("travel_um", 20.0), ctx.get("jitter_load", 0.0))))
+    return dict(record=record, contexts=out)
 
 
 def speed(n_runs_list, steps: int, coating: str) -> dict:
@@ -270,11 +324,13 @@ def main(argv=None) -> int:
     c.add_argument("--record", metavar="FILE", help="append each repeat as it finishes; resume from FILE")
     c.add_argument("--seeds", metavar="LO-HI", help="fit only these repeats (inclusive), highest first: "
                    "a second process or machine sharing the record file")
+    r = sub.add_parser("summary", help="the calibration table of a record file, without fitting")
+    r.add_argument("record", metavar="FILE")
     s = sub.add_parser("speed")
     s.add_argument("--runs", default="2,5,10")
     s.add_argument("--steps", type=int, default=2000)
     s.add_argument("--coating", default="FOTAS")
-    for p in (c, s):
+    for p in (c, s, r):
         p.add_argument("--json", metavar="OUT")
     a = ap.parse_args(argv)
     from _code import code_under_test
@@ -291,6 +347,10 @@ def main(argv=None) -> int:
                 ap.error(f"--seeds {a.seeds}: expected LO-HI, e.g. 25-49")
             seeds = range(lo, hi + 1)
         out = calibration(a.repeats, a.coating, a.travel_um, a.workers, a.jitter_load, a.record, seeds)
+    elif a.what == "summary":
+        if not os.path.exists(a.record):
+            ap.error(f"summary {a.record}: no such file")
+        out = summary_of_record(a.record)
     else:
         out = speed([int(x) for x in a.runs.split(",")], a.steps, a.coating)
     if a.json:

@@ -1,0 +1,48 @@
+"""The calibration benchmark's statistics (tests/bench/bench_fit.py): the coverage's
+range, and the table re-read from a record file without fitting."""
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent / "bench"))
+import bench_fit  # noqa: E402
+
+
+def test_coverage_range_is_clopper_pearson():
+    # at k = n (and k = 0) the exact range has a closed form: (α/2)^(1/n)
+    lo, hi = bench_fit.coverage_range(50, 50)
+    assert hi == 1.0 and lo == pytest.approx(0.025 ** (1 / 50), rel=1e-9)
+    lo, hi = bench_fit.coverage_range(0, 20)
+    assert lo == 0.0 and hi == pytest.approx(1 - 0.025 ** (1 / 20), rel=1e-9)
+    # 47 of 50: the band the calibration note quotes for A (83-99 %)
+    lo, hi = bench_fit.coverage_range(47, 50)
+    assert (round(100 * lo), round(100 * hi)) == (83, 99)
+
+
+def _row(seed, covered: bool, context):
+    truth = bench_fit._truth("FOTAS")
+    row = dict(seed=seed, wall_s=1.0, success=True, iterations=5, status="Solve_Succeeded", reduced_chi2=1.0,
+               start="given", context=context)
+    for n in bench_fit.FREE:
+        v = truth[n] * (1.001 if seed % 2 else 0.999)
+        half = abs(v - truth[n]) * (3 if covered else 0.5)
+        row[n] = dict(value=v, stderr=half / 1.96, ci95=[v - half, v + half])
+    return row
+
+
+def test_summary_of_a_record_groups_its_contexts(tmp_path, capsys):
+    a = dict(coating="FOTAS", travel_um=20.0, jitter_load=0.05, fit_options="A")
+    b = dict(a, fit_options="B")
+    path = tmp_path / "cal.jsonl"
+    rows = [_row(s, s != 3, a) for s in range(10)] + [_row(s, True, b) for s in range(4)]
+    path.write_text("\n".join(json.dumps(r) for r in rows) + "\n{\"cut by a sto")
+    out = bench_fit.summary_of_record(str(path))
+    by = {c["context"]["fit_options"]: c["summary"] for c in out["contexts"]}
+    assert by["A"]["mu_max"]["covered"] == 9 and by["A"]["mu_max"]["coverage"] == pytest.approx(0.9)
+    assert by["B"]["tau"]["covered"] == 4
+    assert by["A"]["A"]["coverage_range"] == pytest.approx(bench_fit.coverage_range(9, 10))
+    printed = capsys.readouterr().out
+    assert "9/10" in printed and "4/4" in printed
