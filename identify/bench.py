@@ -41,7 +41,6 @@ import os
 import statistics
 import sys
 import time
-import warnings
 from typing import Iterable, Sequence
 
 import numpy as np
@@ -79,10 +78,6 @@ RESOLVABLE_SLIP_M = 90e-9
 both routes also report sub-resolution events (the hybrid a femtometre nucleation that
 dies out after a step, the smooth route a nanometre episode just above its detection
 speed), which pull the all-event means down by definition, not by physics."""
-
-
-def _quiet():
-    warnings.filterwarnings("ignore", message="Event support is experimental")
 
 
 def _mean_um(a) -> float | None:
@@ -123,7 +118,6 @@ def run_hybrid(
     k: float = K_BENCH,
 ) -> dict:
     """Time the hybrid simulator on one case (median of ``repeats`` after a warm-up run)."""
-    _quiet()
     opts = SimulationOptions(integrator=integrator, record=False)
     kw = dict(
         spring_constant_N_per_m=k,
@@ -626,7 +620,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         "run can be time-sliced with other work on that CPU)",
     )
     a = ap.parse_args(argv)
-    _quiet()
     quick = a.quick
     travel = a.travel if a.travel is not None else (20.0 if quick else 100.0)
     budget = a.budget if a.budget is not None else (20.0 if quick else DEFAULT_BUDGET_S)

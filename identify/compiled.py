@@ -30,10 +30,13 @@ another process loads it.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 import logging
 import os
 import re
+import sys
 import tempfile
 import threading
 from contextlib import contextmanager
@@ -65,12 +68,42 @@ def cache_dir() -> Path:
     return base / f"casadi-{ca.__version__}"
 
 
+# CasADi prints this through Python's stderr each time an integrator with events is
+# created or loaded (ten lines and more per fit, with a timestamp each): a statement about
+# its API, not about the run. It is logged once instead (logger identify.compiled, debug).
+EVENT_NOTICE = 'WARNING("Event support is experimental")'
+_notice_logged = False
+
+
+@contextmanager
+def _without_event_notice() -> Iterator[None]:
+    """Hold what CasADi writes to stderr meanwhile and pass it on without
+    :data:`EVENT_NOTICE` lines; anything else it wrote is kept, in order."""
+    global _notice_logged
+    held = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(held):
+            yield
+    finally:
+        kept = [line for line in held.getvalue().splitlines(keepends=True) if EVENT_NOTICE not in line]
+        if len(kept) < len(held.getvalue().splitlines()) and not _notice_logged:
+            _notice_logged = True
+            log.debug("CasADi: %s (shown once)", EVENT_NOTICE)
+        if kept:
+            sys.stderr.write("".join(kept))
+
+
 def compiled(build: Callable[[dict], ca.Function], tag: str = "f") -> ca.Function:
     """A compiled version of ``build(opts)`` (``opts`` are extra Function options).
 
     ``build({})`` must be cheap (it only creates the Function); its serialised form is
     the cache key, so a change of model, tolerance or grid gives a new entry.
     """
+    with _without_event_notice():
+        return _compiled(build, tag)
+
+
+def _compiled(build: Callable[[dict], ca.Function], tag: str) -> ca.Function:
     global _failed
     plain = build({})
     if not jit_enabled() or _failed:

@@ -7,9 +7,9 @@ matplotlib.use("Agg")
 
 
 @pytest.fixture(autouse=True)
-def _quiet_casadi_event_warning():
-    # CasADi prints "Event support is experimental" for every event integrator; it is
-    # expected here (see README, integrators).
+def _quiet_deprecations():
+    # (dependencies' DeprecationWarnings; CasADi's event notice, printed to stderr rather
+    # than warned, is held back by identify.compiled)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         yield
