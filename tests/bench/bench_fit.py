@@ -122,19 +122,21 @@ def _one_repeat(args):
     return out
 
 
+def _record_rows(record):
+    """The rows of a record file, in order (a line cut by a stop skipped)."""
+    with open(record) as f:
+        for line in f:
+            try:
+                yield json.loads(line)
+            except json.JSONDecodeError:
+                continue
+
+
 def _recorded(record, context) -> dict:
     """Repeats a record file holds for this context (seed -> row)."""
-    done = {}
-    if record and os.path.exists(record):
-        with open(record) as f:
-            for line in f:
-                try:
-                    row = json.loads(line)
-                except json.JSONDecodeError:  # a line cut by a stop
-                    continue
-                if row.get("context") == context:
-                    done[row["seed"]] = row
-    return done
+    if not (record and os.path.exists(record)):
+        return {}
+    return {row["seed"]: row for row in _record_rows(record) if row.get("context") == context}
 
 
 def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitter: float = 0.0,
@@ -251,14 +253,8 @@ def summary_of_record(record: str) -> dict:
     """The calibration table of every context a record file holds (its repeats as they
     were fitted, whatever the code is now): what ``summary FILE`` prints."""
     groups: dict = {}
-    with open(record) as f:
-        for line in f:
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError:  # a line cut by a stop
-                continue
-            ctx = row.get("context") or {}
-            groups.setdefault(json.dumps(ctx, sort_keys=True), {})[row["seed"]] = row
+    for row in _record_rows(record):
+        groups.setdefault(json.dumps(row.get("context") or {}, sort_keys=True), {})[row["seed"]] = row
     out = []
     for key, by_seed in groups.items():
         ctx = json.loads(key)
