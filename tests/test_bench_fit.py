@@ -46,3 +46,16 @@ def test_summary_of_a_record_groups_its_contexts(tmp_path, capsys):
     assert by["A"]["A"]["coverage_range"] == pytest.approx(bench_fit.coverage_range(9, 10))
     printed = capsys.readouterr().out
     assert "9/10" in printed and "4/4" in printed
+
+
+def test_summary_command(tmp_path, capsys):
+    ctx = dict(coating="FOTAS", travel_um=20.0, jitter_load=0.0, fit_options="A")
+    path = tmp_path / "cal.jsonl"
+    path.write_text("\n".join(json.dumps(_row(s, True, ctx)) for s in range(3)) + "\n")
+    out = tmp_path / "s.json"
+    assert bench_fit.main(["summary", str(path), "--json", str(out)]) == 0
+    assert "3/3" in capsys.readouterr().out
+    assert json.loads(out.read_text())["contexts"][0]["summary"]["tau"]["covered"] == 3
+    with pytest.raises(SystemExit) as e:
+        bench_fit.main(["summary", str(tmp_path / "none.jsonl")])
+    assert e.value.code == 2 and "no such file" in capsys.readouterr().err
