@@ -73,6 +73,7 @@ def cache_dir() -> Path:
 # its API, not about the run. It is logged once instead (logger identify.compiled, debug).
 EVENT_NOTICE = 'WARNING("Event support is experimental")'
 _notice_logged = False
+_stderr_lock = threading.RLock()  # (re-entrant: a build may itself call compiled())
 
 
 @contextmanager
@@ -81,16 +82,19 @@ def _without_event_notice() -> Iterator[None]:
     :data:`EVENT_NOTICE` lines; anything else it wrote is kept, in order."""
     global _notice_logged
     held = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(held):
-            yield
-    finally:
-        kept = [line for line in held.getvalue().splitlines(keepends=True) if EVENT_NOTICE not in line]
-        if len(kept) < len(held.getvalue().splitlines()) and not _notice_logged:
-            _notice_logged = True
-            log.debug("CasADi: %s (shown once)", EVENT_NOTICE)
-        if kept:
-            sys.stderr.write("".join(kept))
+    # (one redirection at a time: two threads' interleaved swaps, e.g. tasks of a dask
+    # worker, could leave sys.stderr pointing at a discarded buffer)
+    with _stderr_lock:
+        try:
+            with contextlib.redirect_stderr(held):
+                yield
+        finally:
+            kept = [line for line in held.getvalue().splitlines(keepends=True) if EVENT_NOTICE not in line]
+            if len(kept) < len(held.getvalue().splitlines()) and not _notice_logged:
+                _notice_logged = True
+                log.debug("CasADi: %s (shown once)", EVENT_NOTICE)
+            if kept and sys.stderr is not None:
+                sys.stderr.write("".join(kept))
 
 
 def compiled(build: Callable[[dict], ca.Function], tag: str = "f") -> ca.Function:

@@ -426,13 +426,27 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
     prob, best, n_seq = _misfit_triggers(prob, best, model, values, opts, say, unsolved=n_alt + n_batch > 0)
     if best.get("loose"):  # no pass re-solved it: the sequence is settled, solved fully now
         say("the mode sequence settled: solving to the full tolerance")
-        sol = prob.solve(best["w"])
-        best = dict(sol, iterations=best["iterations"] + sol["iterations"], wall_s=best["wall_s"] + sol["wall_s"])
+        best = _full_tolerance(prob, best)
     best["triggers_moved"] = refined + n_batch + n_alt + n_seq["moved"]
     best["slips_inserted"] = inserted + n_seq["inserted"]
     best["slips_removed"] = n_seq["removed"]
     best["restarts"] = restarts
     return prob, best
+
+
+def _full_tolerance(prob, best: dict) -> dict:
+    """A loose solution (``Problem.solve(loose=True)``) solved on to the full tolerances;
+    if that fails, the loose point stands, reported as not converged."""
+    loose = {k: v for k, v in best.items() if k != "loose"}
+    try:
+        sol = prob.solve(best["w"])
+    except Exception as err:
+        log.info("the full-tolerance solve after the mode sequence failed: %s", err)
+        return dict(loose, success=False, status=f"{best.get('status')} (loose); the full-tolerance solve failed")
+    if not np.isfinite(sol["f"]):
+        return dict(loose, success=False, status=f"{best.get('status')} (loose); the full-tolerance solve failed",
+                    iterations=best["iterations"] + sol["iterations"], wall_s=best["wall_s"] + sol["wall_s"])
+    return dict(sol, iterations=best["iterations"] + sol["iterations"], wall_s=best["wall_s"] + sol["wall_s"])
 
 
 def _with_insertions(prob, moved: dict, n_moved: int, inserted: dict, n_inserted: int) -> tuple[dict, int, int]:

@@ -886,7 +886,10 @@ class Problem:
             near = (self.near_tol > 0 and lm == 0 and feas0 < min(self.stall_feas, STALL_FEAS)
                     and moves < max(self.near_tol, stat_tol)
                     and abs(float(grad @ d) + moves) < min(self.stall_tol, STALL_TOL))
-            loose = self._loose and lm == 0 and feas0 < LOOSE_FEAS_TOL and moves < LOOSE_STAT_TOL
+            # (and, as for NEAR_TOL, ½χ²'s own change along the step, restoring continuity
+            # included, within the tolerance: moves alone leaves out λᵀg)
+            loose = (self._loose and lm == 0 and feas0 < LOOSE_FEAS_TOL and moves < LOOSE_STAT_TOL
+                     and abs(float(grad @ d) + moves) < LOOSE_STAT_TOL)
             if (feas0 < feas_tol and moves < stat_tol) or near or loose:
                 if loose and not near and not (feas0 < feas_tol and moves < stat_tol):
                     log.debug("GN it %d: converged to the loose tolerances at |g| %.2e", it, feas0)

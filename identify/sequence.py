@@ -257,7 +257,9 @@ def _kept(prob, best, i, trial, sol, model, values, opts, say):
     except Exception as err:
         log.info("taking a kept mode-sequence change into the whole problem failed: %s", err)
         return None, None, its, wall
-    return full, dict(best, w=w0, f=0.5 * float(r @ r), success=False, status=sol["status"]), its, wall
+    # (not a loose solution any more: the pass's joint solve, or its failure, decides)
+    adopted = {k: v for k, v in best.items() if k != "loose"}
+    return full, dict(adopted, w=w0, f=0.5 * float(r @ r), success=False, status=sol["status"]), its, wall
 
 
 def _alone_or_none(prob, w, i, model, opts, say):
