@@ -437,16 +437,15 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
 def _full_tolerance(prob, best: dict) -> dict:
     """A loose solution (``Problem.solve(loose=True)``) solved on to the full tolerances;
     if that fails, the loose point stands, reported as not converged."""
-    loose = {k: v for k, v in best.items() if k != "loose"}
+    failed = {k: v for k, v in best.items() if k != "loose"}
+    failed.update(success=False, status=f"{best.get('status')} (loose); the full-tolerance solve failed")
     try:
         sol = prob.solve(best["w"])
     except Exception as err:
         log.info("the full-tolerance solve after the mode sequence failed: %s", err)
-        return dict(loose, success=False, status=f"{best.get('status')} (loose); the full-tolerance solve failed")
-    if not np.isfinite(sol["f"]):
-        return dict(loose, success=False, status=f"{best.get('status')} (loose); the full-tolerance solve failed",
-                    iterations=best["iterations"] + sol["iterations"], wall_s=best["wall_s"] + sol["wall_s"])
-    return dict(sol, iterations=best["iterations"] + sol["iterations"], wall_s=best["wall_s"] + sol["wall_s"])
+        return failed
+    spent = dict(iterations=best["iterations"] + sol["iterations"], wall_s=best["wall_s"] + sol["wall_s"])
+    return dict(sol, **spent) if np.isfinite(sol["f"]) else dict(failed, **spent)
 
 
 def _with_insertions(prob, moved: dict, n_moved: int, inserted: dict, n_inserted: int) -> tuple[dict, int, int]:
