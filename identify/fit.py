@@ -73,6 +73,10 @@ class FitOptions:
         Finite differences of the arcs while the solver iterates (``forward``, default:
         one integration per input instead of two); the covariance always uses central
         differences.
+    share_arc_jacobian : bool
+        Let slips whose inputs nearly agree share one slip's forward differences
+        (``identify.nlp.SHARE_TOL``; default True): a run's slips repeat nearly one
+        cycle, and most of an iteration's integrations went to derivatives known already.
     solver : {"gauss-newton", "ipopt"}
         ``gauss-newton`` (default): constrained Gauss–Newton SQP with an ℓ1-merit line
         search (Bock's method for multiple shooting). ``ipopt``: Ipopt with the same
@@ -153,6 +157,7 @@ class FitOptions:
     arc_reltol: float = ARC_RELTOL
     arc_abstol: float = ARC_ABSTOL
     arc_jacobian: str = "forward"
+    share_arc_jacobian: bool = True
     solver: str = "gauss-newton"
     staged_start: bool = True
     max_iter: int = 100

@@ -1,0 +1,147 @@
+"""Forward differences shared among nearly equal arcs while the solver iterates
+(identify.arcs.share_groups, identify.nlp.SHARE_TOL)."""
+
+import numpy as np
+import pytest
+
+import identify.nlp as nlp
+from identify import FitOptions, fit
+from identify.arcs import share_groups
+
+from .test_fit import V_STICK, _traces
+
+FREE = ("mu_max", "mu_min", "tau", "A")
+
+
+def _columns(n_in=8):
+    """Six arcs: x0, e0, state0, two shared parameters, k, Nb, M (rows 0-7)."""
+    A = np.zeros((n_in, 6))
+    A[0] = [0.0, 5.0, 10.0, 15.0, 20.0, 25.0]  # the block position: different for every arc
+    A[1] = [2.0, 2.0002, 2.003, 2.0, 2.0, 2.0]  # e0 (µm)
+    A[2] = [0.8, 0.8, 0.8, 0.8, 0.8, 0.8]
+    A[3], A[4] = 0.79, 0.48
+    A[5] = [2.13, 2.13, 2.13, 20.3, 2.13, 2.13]  # k: the fourth arc is another run's
+    A[6], A[7] = 5e-6, 12
+    y = np.zeros((5, 6))
+    y[4, 4] = 1.0  # the fifth still moving at its horizon
+    return A, y
+
+
+def test_nearly_equal_arcs_of_one_run_share_and_nothing_else_does():
+    A, y = _columns()
+    typical = np.ones(A.shape[0])
+    reps, inv = share_groups(A, y, rows=[1, 2, 3, 4], typical=typical, tol=1e-3)
+    group = reps[inv]
+    # e0 2.0 and 2.0002 in one cell of the grid 1e-3 × 2 µm wide; x0 does not count
+    # without the topography (not among the rows differenced)
+    assert group[0] == group[1] == group[5]
+    assert len(set(group[[0, 2, 3, 4]])) == 4  # 2.003 a cell further; another k; moving
+    # with the block position differenced (the topography), it separates every arc
+    reps, inv = share_groups(A, y, rows=[0, 1, 2, 3, 4], typical=typical, tol=1e-3)
+    assert len(reps) == 6
+    # an arc that failed (NaN) keeps its own differences, and the others still share
+    A[1, 5] = np.nan
+    reps, inv = share_groups(A, y, rows=[1, 2, 3, 4], typical=typical, tol=1e-3)
+    group = reps[inv]
+    assert group[5] == 5 and group[0] == group[1] and len(reps) == 5
+
+
+@pytest.fixture(scope="module")
+def small():
+    """The two 15 µm runs of test_fit, fitted with and without the sharing."""
+    traces = _traces([(2.13, 5, 100), (20.3, 30, 30)])
+    return {share: fit(traces, options=FitOptions(fixed={"v_stick": V_STICK}, share_arc_jacobian=share))
+            for share in (True, False)}
+
+
+def test_shared_differences_agree_with_each_arcs_own_at_the_solution(small):
+    """At the fit's solution a run's slips repeat one cycle: measured, 9 of the 41 arcs'
+    differences stand for all, each within 0.1 % (max 9.3e-4, median 3.8e-4) of the arc's
+    own — below the forward differences' own error (95th percentile 6e-3). The values
+    are every arc's own."""
+    res = small[True]
+    prob = res.problem
+    A = np.array(prob._arc_inputs(res.w))
+    rows, n = prob._cb_jac.rows, A.shape[1]
+    own = prob.arcs.evaluate_jacobian(A, rows=rows, rel_step=nlp.SOLVE_REL_STEP, scheme="forward")
+    shared = prob.arcs.evaluate_jacobian(A, rows=rows, rel_step=nlp.SOLVE_REL_STEP, scheme="forward",
+                                         share=nlp.SHARE_TOL)
+    np.testing.assert_array_equal(own[0], shared[0])
+    J, Js = (x[1].reshape(2, n, -1)[:, :, rows] for x in (own, shared))
+    err = np.abs(Js - J).max(axis=2) / np.abs(J).max(axis=2)
+    reps, _ = share_groups(A, own[0], rows, prob.arcs.typical, nlp.SHARE_TOL)
+    assert len(reps) <= n // 3, (len(reps), n)
+    assert err.max() < 3e-3, err.max()
+
+
+def test_the_fit_with_shared_differences_ends_where_the_fit_without_does(small):
+    """Each full-tolerance solve ends on every arc's own differences
+    (Problem._own_differences), so both fits end converged within the same statistical
+    tolerance (NEAR_TOL: the parameters within 0.045 standard errors in any direction):
+    measured, at most 0.035 standard errors apart."""
+    a, b = small[True], small[False]
+    assert a.solver["success"] and b.solver["success"]
+    for name in FREE:
+        assert abs(a[name].value - b[name].value) < 0.1 * b[name].stderr, name
+        assert a[name].stderr == pytest.approx(b[name].stderr, rel=0.02)
+
+
+def test_a_full_solve_ends_on_each_arcs_own_differences(small, monkeypatch):
+    """Problem.solve at full tolerance: a solve that ended on shared differences goes on
+    from there on the arcs' own; a loose one (deciding a mode sequence only) does not."""
+    prob = small[True].problem
+    w0 = prob.initial_w({"mu_max": 0.75, "mu_min": 0.5, "tau": 0.08, "A": 0.012})
+    seen = []
+    solve_gn = prob.solve_gn
+
+    def recording(w, fixed=None):
+        seen.append(prob._cb_jac_shared())
+        return solve_gn(w, fixed)
+
+    monkeypatch.setattr(prob, "solve_gn", recording)
+    loose = prob.solve(w0, loose=True)
+    assert seen == [True] and loose["shared"]
+    seen.clear()
+    full = prob.solve(w0)
+    assert seen == [True, False] and not full["shared"] and full["success"]
+    assert prob._cb_jac_shared()  # the option's differences again after the solve
+
+
+class _ForwardFlipped:
+    """The arcs, with forward differences of the wrong sign (central ones as they are)."""
+
+    def __init__(self, arcs):
+        self._arcs = arcs
+
+    def __getattr__(self, name):
+        return getattr(self._arcs, name)
+
+    def evaluate_jacobian(self, A, *args, scheme="central", **kw):
+        y, J = self._arcs.evaluate_jacobian(A, *args, scheme=scheme, **kw)
+        return y, (-J if scheme == "forward" else J)
+
+
+def test_a_rejected_step_on_shared_differences_is_taken_again_on_each_arcs_own(small, monkeypatch):
+    """A full step on shared differences that fails is computed again at the same point
+    on each arc's own forward differences, and then, failing again from a feasible point,
+    on central ones (the rung before the sharing): with the forward rows of the wrong
+    sign, two iterations more than a solve on central differences from the start, which
+    ends at the same point."""
+    res = small[True]
+    prob, w = res.problem, res.w.copy()
+    w[0] += 1e-3
+    monkeypatch.setattr(prob, "near_tol", 0.0)  # (only the tight convergence rule)
+    monkeypatch.setattr(prob, "flat_iters", 0)
+    prob.jacobian_scheme("central", nlp.SOLVE_REL_STEP)
+    w = prob.solve_gn(w, fixed={0: w[0]})["w"]  # feasible, μmax held off
+    assert np.abs(prob.evaluate(w)[1]).max() < prob.feas_tol
+    prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP)
+    assert prob._cb_jac_shared()
+    flipped = _ForwardFlipped(prob._cb_jac.arcs)
+    monkeypatch.setattr(prob._cb_jac, "arcs", flipped)
+    out = prob.solve_gn(w)
+    assert out["central"] and not prob._cb_jac_forward()
+    ref = prob.solve_gn(w)
+    assert not ref["central"] and ref["success"]
+    assert out["success"] and out["iterations"] == ref["iterations"] + 2
+    np.testing.assert_allclose(out["w"], ref["w"], rtol=0, atol=1e-12)
