@@ -75,8 +75,8 @@ def test_shared_differences_agree_with_each_arcs_own_at_the_solution(small):
 
 
 def test_the_fit_with_shared_differences_ends_where_the_fit_without_does(small):
-    """Each full-tolerance solve ends on every arc's own differences
-    (Problem._own_differences), so both fits end converged within the same statistical
+    """The fit ends on every arc's own differences
+    (Problem.own_differences), so both fits end converged within the same statistical
     tolerance (NEAR_TOL: the parameters within 0.045 standard errors in any direction):
     measured, at most 0.035 standard errors apart."""
     a, b = small[True], small[False]
@@ -86,10 +86,12 @@ def test_the_fit_with_shared_differences_ends_where_the_fit_without_does(small):
         assert a[name].stderr == pytest.approx(b[name].stderr, rel=0.02)
 
 
-def test_a_full_solve_ends_on_each_arcs_own_differences(small, monkeypatch):
-    """Problem.solve at full tolerance: a solve that ended on shared differences goes on
-    from there on the arcs' own; a loose one (deciding a mode sequence only) does not."""
-    prob = small[True].problem
+def test_the_fit_ends_on_each_arcs_own_differences(small, monkeypatch):
+    """A solve that ended on shared differences goes on from there on the arcs' own
+    (Problem.own_differences), the fit's last step: from the fit's solution a solve on
+    them ends at once, converged."""
+    res = small[True]
+    prob = res.problem
     w0 = prob.initial_w({"mu_max": 0.75, "mu_min": 0.5, "tau": 0.08, "A": 0.012})
     seen = []
     solve_gn = prob.solve_gn
@@ -99,12 +101,19 @@ def test_a_full_solve_ends_on_each_arcs_own_differences(small, monkeypatch):
         return solve_gn(w, fixed)
 
     monkeypatch.setattr(prob, "solve_gn", recording)
-    loose = prob.solve(w0, loose=True)
-    assert seen == [True] and loose["shared"]
+    sol = prob.solve(w0)
+    assert seen == [True] and sol["shared"] and sol["success"]
+    own = prob.own_differences(dict(sol, slips_inserted=3))
+    assert seen == [True, False] and not own["shared"] and own["success"]
+    assert own["slips_inserted"] == 3  # (the fit's records carried)
+    assert own["iterations"] > sol["iterations"]
+    assert prob._cb_jac_shared()  # the option's differences again after it
     seen.clear()
-    full = prob.solve(w0)
-    assert seen == [True, False] and not full["shared"] and full["success"]
-    assert prob._cb_jac_shared()  # the option's differences again after the solve
+    assert prob.own_differences(own) is own and not seen  # nothing to do
+    monkeypatch.undo()
+    prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP, share=False)
+    end = prob.solve_gn(res.w.copy())
+    assert end["success"] and end["iterations"] == 1
 
 
 class _ForwardFlipped:
