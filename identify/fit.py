@@ -531,38 +531,6 @@ def _after_insertion(prob, w_warm, fresh_start: dict, n_added: int, opts, restar
     return sol
 
 
-def _missed_at_start(prob, start: dict, w0, start_given: dict, model, values: dict, opts, say):
-    """Missed slips (:func:`identify.missed.missed_slips`) looked for at the start, before
-    the first solve: where the start's model predicts a slip inside a detected plateau
-    and the frames show one. Found ones are inserted, and the start staged again on the
-    repaired sequence (from ``start_given``). Returns (problem, start values, w0, number
-    inserted).
-
-    Why: a missed slip found only after the first solve made that solve's work wasted (it
-    had bent the parameters to explain the merged plateaus) and cost a second solve from
-    a fresh start. The staged start fits the aging to the triggers, which is what
-    predicts where the next slip comes: measured on the 10-run speed set, the start
-    found the same 7 missed slips as the first solve's solution, and the fit took 30 s
-    against 45 s with the same estimates (to 1e-5 relative). Slips the start does not
-    predict are still found after the first solve, as before."""
-    if not prob.E:
-        return prob, start, w0, 0
-    try:
-        changes, n_added = missed_slips(prob, w0)
-    except Exception as err:  # (the start's arcs cannot be evaluated: the solve will say)
-        log.info("missed slips at the start not looked for: %s", err)
-        return prob, start, w0, 0
-    if not n_added:
-        return prob, start, w0, 0
-    say(f"start: {n_added} missed slip(s) inserted where the start's model predicts a slip and the frames show one")
-    new, _ = _with_triggers(prob, w0, changes, model, values, opts, say)
-    if start != start_given:  # (staged, and the staging kept: staged again)
-        from .start import staged_start
-
-        start, _ = staged_start(new, start_given, seed=opts.seed or 0)
-    return new, start, new.initial_w(start), int(n_added)
-
-
 def _suspect(prob, res, noise_p: float | None = None) -> str:
     """Why a solution looks wrong ('' if it does not): the solver did not converge, or
     the frames' noise does not explain it (reduced χ² > SUSPECT_REDCHI). With
@@ -694,7 +662,6 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         else:
             start_source += f" (staged start rejected: χ² {m_staged:.4g} > {m_from:.4g})"
     w0 = prob.initial_w(start)
-    prob, start, w0, n_missed = _missed_at_start(prob, start, w0, start_given, model, values, opts, say)
     starts = [w0]
     rng = np.random.default_rng(opts.seed)
     for _ in range(opts.multistart):
@@ -742,8 +709,6 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         raise FitError("every solver start failed: " + "; ".join(r["status"] for r in results))
     t_seq = time.perf_counter()
     prob, best = decide_sequence(prob, best, model, values, opts, say, fresh_start=start_given)
-    best["slips_inserted"] += n_missed
-    best["slips_inserted_at_start"] = n_missed
     t_seq = time.perf_counter() - t_seq
     if final_opts.trigger == "interval":
         prob, best, how = _interval_solve(prob, best, final_opts, say)

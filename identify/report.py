@@ -135,8 +135,7 @@ class FitResult:
             *(["    triggers           = intervals (after the uniform encoding's fit); no trigger "
                "residuals in the chi-square or the covariance"] if s.get("trigger") == "interval" else []),
             f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved, "
-            f"{s.get('slips_inserted', 0)} missed slip(s) inserted"
-            + (f" ({s['slips_inserted_at_start']} at the start)" if s.get("slips_inserted_at_start") else "") + ", "
+            f"{s.get('slips_inserted', 0)} missed slip(s) inserted, "
             f"{s.get('slips_removed', 0)} spurious slip(s) removed by the fit",
             *([f"    arcs not finished  = {s['arcs_failed']} at trial points the solver rejected "
                f"(last: {s.get('arc_failure', '?')})"] if s.get("arcs_failed") else []),
@@ -345,7 +344,6 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
         solver=dict(status=best["status"], success=best["success"], iterations=best["iterations"],
                     wall_time_s=float(wall_s), triggers_moved=int(best.get("triggers_moved", 0)),
                     slips_inserted=int(best.get("slips_inserted", 0)),
-                    slips_inserted_at_start=int(best.get("slips_inserted_at_start", 0)),
                     slips_removed=int(best.get("slips_removed", 0)),
                     restarts=list(best.get("restarts", [])),
                     method=("Gauss-Newton SQP (Gauss-Newton Hessian, l1-merit line search)"
