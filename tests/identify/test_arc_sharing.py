@@ -8,7 +8,7 @@ import identify.nlp as nlp
 from identify import FitOptions, fit
 from identify.arcs import share_groups
 
-from .test_fit import V_STICK, _traces
+from .test_fit import V_STICK, _ForwardFlipped, _traces
 
 FREE = ("mu_max", "mu_min", "tau", "A")
 
@@ -114,20 +114,6 @@ def test_the_fit_ends_on_each_arcs_own_differences(small, monkeypatch):
     prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP, share=False)
     end = prob.solve_gn(res.w.copy())
     assert end["success"] and end["iterations"] == 1
-
-
-class _ForwardFlipped:
-    """The arcs, with forward differences of the wrong sign (central ones as they are)."""
-
-    def __init__(self, arcs):
-        self._arcs = arcs
-
-    def __getattr__(self, name):
-        return getattr(self._arcs, name)
-
-    def evaluate_jacobian(self, A, *args, scheme="central", **kw):
-        y, J = self._arcs.evaluate_jacobian(A, *args, scheme=scheme, **kw)
-        return y, (-J if scheme == "forward" else J)
 
 
 def test_a_rejected_step_on_shared_differences_is_taken_again_on_each_arcs_own(small, monkeypatch):
