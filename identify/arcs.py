@@ -289,13 +289,14 @@ def share_groups(A: np.ndarray, y: np.ndarray, rows, typical: np.ndarray, tol: f
 
     Why: the slips of one run repeat nearly the same cycle, so their inputs, and their
     derivatives, nearly agree. Measured on the 2-run speed set (274 arcs): at the fitted
-    point the inputs of a run's slips agree to 0.2 %, and at ``tol`` 2e-3 six arcs'
-    differences stood for all 274, each within 0.18 % of the arc's own — below the 0.6 %
-    (95th percentile) forward differences already err by; at the start (continuity still
-    far off) 52 of 274, median 0.05 %, 95th percentile 5 %."""
+    point the inputs of a run's slips agree to 0.2 %, and at ``tol`` 1e-3 (the solver's
+    ``SHARE_TOL``) eight arcs' differences stood for all 274, each within 0.11 % of the
+    arc's own — below the 0.6 % (95th percentile) forward differences already err by;
+    at the start (continuity still far off) 85 of 274, median 0.02 %, 95th percentile
+    4.6 %, largest 19 % (hence ``identify.nlp.SHARE_FEAS``)."""
     n = A.shape[1]
     per_arc = [i for i in range(len(_PER_ARC)) if i > 0 or i in set(rows)]
-    other = [i for i in range(A.shape[0]) if i >= len(_PER_ARC)]
+    other = list(range(len(_PER_ARC), A.shape[0]))
     with np.errstate(invalid="ignore"):
         size = np.abs(A[per_arc]).mean(axis=1, where=np.isfinite(A[per_arc]))
         scale = np.fmax(size, typical[per_arc])[:, None]
