@@ -220,7 +220,8 @@ class ArcFunctions:
             return out
 
     def evaluate_jacobian(self, A: np.ndarray, threads: int = 1, rows=None, rel_step: float | None = None,
-                          scheme: str = "central", share: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                          scheme: str = "central", share: float | None = None,
+                          own: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Outputs and d(slip, state at horizon)/d(inputs) by finite differences.
 
         ``rows``: the inputs that vary (others get zero columns). ``scheme``:
@@ -232,6 +233,7 @@ class ArcFunctions:
         measured); the solver passes 1e-4 (``identify.nlp.SOLVE_REL_STEP``).
         ``share``: arcs whose inputs agree to this relative distance take one
         representative's differences (:func:`share_groups`); None, every arc its own.
+        ``own`` (bool per arc): arcs that keep their own differences even so.
         Returns y (5 × n) and J (2 × n_in·n), arc e's block in columns
         e·n_in … (e+1)·n_in − 1.
         """
@@ -243,7 +245,7 @@ class ArcFunctions:
         full_n, inverse = n, None
         if share is not None and n > 1:
             y_all = self.evaluate(A, threads)  # (remembered: the solver asked for the values first)
-            reps, inverse = share_groups(A, y_all, rows, self.typical, share)
+            reps, inverse = share_groups(A, y_all, rows, self.typical, share, own=own)
             if reps.size < n:
                 A = A[:, reps]
                 n = A.shape[1]
@@ -278,7 +280,8 @@ class ArcFunctions:
 _PER_ARC = ("x0_um", "e0_um", "state0")
 
 
-def share_groups(A: np.ndarray, y: np.ndarray, rows, typical: np.ndarray, tol: float):
+def share_groups(A: np.ndarray, y: np.ndarray, rows, typical: np.ndarray, tol: float,
+                 own: np.ndarray | None = None):
     """Arcs that may share one arc's finite differences: (representatives, inverse), with
     arc j's group represented by column ``reps[inverse[j]]``.
 
@@ -286,6 +289,7 @@ def share_groups(A: np.ndarray, y: np.ndarray, rows, typical: np.ndarray, tol: f
     among the ``rows`` differenced: without the topography no arc depends on it), those
     in the same cell of a grid ``tol`` × their scale (the larger of the arcs' mean
     magnitude and ``typical``) wide, and the same end (stopped or still moving, ``y[4]``).
+    Arcs where ``own`` (bool per arc) is set, and arcs that failed, are groups of one.
 
     Why: the slips of one run repeat nearly the same cycle, so their inputs, and their
     derivatives, nearly agree. Measured on the 2-run speed set (274 arcs): at the fitted
@@ -302,10 +306,12 @@ def share_groups(A: np.ndarray, y: np.ndarray, rows, typical: np.ndarray, tol: f
         scale = np.fmax(size, typical[per_arc])[:, None]
         cells = np.floor(A[per_arc] / (tol * scale))
     key = np.vstack([A[other], cells, np.nan_to_num(y[4:5], nan=-1.0)])
-    if not np.all(np.isfinite(key)):  # (an arc that failed keeps its own differences)
-        bad = ~np.all(np.isfinite(key), axis=0)
+    alone = ~np.all(np.isfinite(key), axis=0)  # (an arc that failed keeps its own differences)
+    if own is not None:
+        alone |= np.asarray(own, bool)
+    if alone.any():
         key = np.nan_to_num(key, nan=0.0, posinf=0.0, neginf=0.0)
-        key = np.vstack([key, np.where(bad, np.arange(n), -1)])
+        key = np.vstack([key, np.where(alone, np.arange(n), -1)])
     _, reps, inverse = np.unique(key.T, axis=0, return_index=True, return_inverse=True)
     return reps, inverse.ravel()
 

@@ -44,6 +44,12 @@ def test_nearly_equal_arcs_of_one_run_share_and_nothing_else_does():
     reps, inv = share_groups(A, y, rows=[1, 2, 3, 4], typical=typical, tol=1e-3)
     group = reps[inv]
     assert group[5] == 5 and group[0] == group[1] and len(reps) == 5
+    # an arc held to its own differences (far from continuity) too
+    A[1, 5] = 2.0
+    reps, inv = share_groups(A, y, rows=[1, 2, 3, 4], typical=typical, tol=1e-3,
+                             own=np.array([False, True, False, False, False, False]))
+    group = reps[inv]
+    assert group[1] == 1 and group[0] == group[5] != 1 and len(reps) == 5
 
 
 @pytest.fixture(scope="module")
@@ -140,3 +146,51 @@ def test_a_rejected_step_on_shared_differences_is_taken_again_on_each_arcs_own(s
     assert not ref["central"] and ref["success"]
     assert out["success"] and out["iterations"] == ref["iterations"] + 2
     np.testing.assert_allclose(out["w"], ref["w"], rtol=0, atol=1e-12)
+
+
+def test_arcs_share_only_where_their_constraints_are_near_continuity(small):
+    """Per arc (Problem.near_continuity): a slip far from continuity keeps its own
+    differences, and so do the slips its constraints touch (the next slip starts from
+    the plateau it ends on; the start positions its end state sets); the rest share."""
+    prob = small[True].problem
+    g = np.zeros(prob.n_g)
+    assert prob.near_continuity(g).all()
+    nx = prob.ev_next
+    e = int(nx[len(nx) // 2])  # a slip with a predecessor and (most likely) a successor
+    assert e + 1 in set(nx.tolist()) and prob.n_g == prob.E + nx.size
+    g[e] = 2 * nlp.SHARE_FEAS  # its slip length off the plateaus around it
+    near = prob.near_continuity(g)
+    assert not near[e] and not near[e + 1] and near[e - 1]
+    assert near.sum() == prob.E - 2
+    g[:] = 0.0
+    j = int(np.flatnonzero(nx == e)[0])
+    g[prob.E + j] = -2 * nlp.SHARE_FEAS  # the start position of slip e, set by slip e - 1's end
+    near = prob.near_continuity(g)
+    assert not near[e] and not near[e - 1] and near[e + 1] and near.sum() == prob.E - 2
+    # the solver's scheme: the far arcs keep their own differences
+    prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP, share=near)
+    assert prob._cb_jac_shared() and prob._cb_jac.own.sum() == 2
+    prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP, share=np.ones(prob.E, bool))
+    assert prob._cb_jac.own is None
+
+
+def test_the_covariance_on_shared_central_differences_agrees_with_each_arcs_own(small, monkeypatch):
+    """The covariance shares central differences among arcs within the secant step
+    (COVARIANCE_SHARE_TOL): the standard errors agree with those on each arc's own to
+    well below 1 % (measured: 0.02 % here, with 27 of the 41 arcs integrated; 0.17 % on
+    the 10-run speed set), for every covariance."""
+    res = small[True]
+    prob, w = res.problem, res.w
+    A = np.array(prob._arc_inputs(w))
+    reps, _ = share_groups(A, prob.arcs.evaluate(A), prob._cb_jac.rows, prob.arcs.typical,
+                           nlp.COVARIANCE_SHARE_TOL)
+    assert len(reps) < 0.8 * A.shape[1]  # (the test shares something)
+    se = {}
+    for tol in (nlp.COVARIANCE_SHARE_TOL, None):
+        monkeypatch.setattr(nlp, "COVARIANCE_SHARE_TOL", tol)
+        se[tol] = {m: np.sqrt(np.diag(prob.covariance(w, robust=m))[:prob.n_theta])
+                   for m in ("robust", "cluster", "model")}
+        assert prob._cb_jac.share == tol and prob._cb_jac.scheme == "central"
+        assert not prob._cb_jac_shared()  # (not the solver's shared differences)
+    for m, own in se[None].items():
+        np.testing.assert_allclose(se[nlp.COVARIANCE_SHARE_TOL][m], own, rtol=5e-3, err_msg=m)
