@@ -26,8 +26,8 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
+from . import kkt
 from .features import Layout
 
 __all__ = ["HeldOut", "folds_of", "heldout_residuals", "exact_fold"]
@@ -60,7 +60,7 @@ def _kkt_solve(H, Jg, rhs_grad, g, free):
     K = sp.bmat([[Hf, Jf.T], [Jf, None]], format="csc") if m else Hf.tocsc()
     rhs = np.r_[-rhs_grad[free], -g] if m else -rhs_grad[free]
     try:
-        sol = spla.splu(K).solve(rhs)
+        sol = kkt.solve(K, rhs)
     except RuntimeError:  # exactly singular (a direction no kept row sees): least squares
         Kd = K.toarray()
         # (non-finite, LAPACK prints "DLASCL parameter number 4 had an illegal value"; the

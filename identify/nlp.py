@@ -52,8 +52,8 @@ from typing import Iterable, Mapping, Sequence
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
+from . import kkt
 from .arcs import ArcFunctions, arc_functions
 from .model import LENGTH_UNIT, Model
 from .params import SPECS
@@ -332,7 +332,7 @@ def _kkt_solve(H, Jg, grad, g, free):
     """Solution (step on ``free``, then multipliers) of the linearised least-squares
     problem's KKT system; RuntimeError when it is singular (sparse LU)."""
     K = sp.bmat([[H[free][:, free], Jg[:, free].T], [Jg[:, free], None]], format="csc")
-    return spla.splu(K).solve(np.r_[-grad[free], -g])
+    return kkt.solve(K, np.r_[-grad[free], -g])
 
 
 def _blockdiag_sparsity(rows: int, cols: int, E: int) -> ca.Sparsity:
@@ -1566,7 +1566,7 @@ class Problem:
         rhs = np.zeros((n + m, len(cols)))
         rhs[cols, np.arange(len(cols))] = 1.0
         try:
-            sol = spla.splu(K).solve(rhs)
+            sol = kkt.solve(K, rhs)
             ok = np.all(np.isfinite(sol))
         except RuntimeError:
             ok = False

@@ -1297,11 +1297,11 @@ def test_a_singular_held_out_step_with_non_finite_entries_is_no_step(monkeypatch
 
     from identify import heldout
 
-    def singular(_K):
+    def singular(_K, _b):
         raise RuntimeError("Factor is exactly singular")
 
     called = []
-    monkeypatch.setattr(heldout.spla, "splu", singular)
+    monkeypatch.setattr(heldout.kkt, "solve", singular)
     monkeypatch.setattr(heldout.np.linalg, "lstsq", lambda *a, **k: called.append(1))
     H = sp.csc_matrix(np.array([[np.inf, 0.0], [0.0, 1.0]]))
     d = heldout._kkt_solve(H, sp.csr_matrix((0, 2)), np.ones(2), np.zeros(0), np.arange(2))
