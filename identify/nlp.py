@@ -170,6 +170,17 @@ SHARE_TOL = 1e-3
 # (load offset withheld) crawled at |g| ~0.02 µm to the iteration limit, where each
 # arc's own differences had not; at 1e-2 µm both end as they did.
 SHARE_FEAS = 1e-2
+# A full step on shared differences that fails is taken again on each arc's own, which the
+# rest of the solve keeps, unless that step too needs the line search (or damping): then
+# the constraints' curvature stopped it, not the sharing, and the solve shares again, its
+# shared steps from then on backtracked like any other while the largest violation is at
+# least SHARE_FEAS (nearer, a failed full step is checked again). Measured on
+# the 5-run speed set: its first solve failed a shared full step at |g| ~0.1 µm and the
+# own-differences step after it took α = 0.25; the solve then spent 5 more iterations,
+# and the solve after the inserted slips 11, on each arc's own differences (~1.5 s each
+# against ~0.5 s shared) while |g| stayed above 0.02 µm. Sharing again without trusting
+# failed the next shared step each time: four own-differences checks in a row, each
+# backtracked to α 0.06-0.12 as the shared steps would have been.
 # A solve that stalls or fails its line search on forward differences is solved once more
 # on central ones (Problem.solve) only if it ended within this violation of continuity
 # (µm). Forward differences err by a small share of each Jacobian row (95th percentile
@@ -893,6 +904,7 @@ class Problem:
         flat_tol = min(self.stall_tol, STALL_TOL)
         refreshed = False
         may_share = self._cb_jac_shared()
+        own_check, trusted = False, False  # (shared steps trusted far out: see SHARE_FEAS)
         r, g = self.evaluate(w)
         for it in range(1, opts.max_iter + 1):
             if may_share:  # (SHARE_FEAS, per arc)
@@ -1012,6 +1024,9 @@ class Problem:
             # rejected ones took 97 % of the line-search evaluations)
             tried = 0
             shared = self._cb_jac_shared()
+            # (a shared step that fails is checked on each arc's own differences, unless
+            # one such check showed the curvature far from continuity at work: SHARE_FEAS)
+            check = shared and not (trusted and feas0 >= SHARE_FEAS)
             while a > 1e-10 and (dphi >= 0 or -a * dphi >= stat_tol):
                 tried += 1
                 r1, g1 = self.evaluate(w + a * d)
@@ -1025,7 +1040,7 @@ class Problem:
                     if soc is not None:
                         d, (r1, g1, phi1), accepted = soc[0], soc[1], True
                         break
-                    if shared:
+                    if check:
                         break  # (the arcs' own differences first: below)
                 a *= 0.5
             if not accepted and tried and (shared or feas0 < feas_tol and self._cb_jac_forward()):
@@ -1048,7 +1063,7 @@ class Problem:
                 log.debug("GN it %d rejected on %s forward differences: the arcs' Jacobian again, %s", it,
                           "shared" if shared else "the arcs' own", "unshared" if shared else "central")
                 self.jacobian_scheme("forward" if shared else "central", SOLVE_REL_STEP, share=False)
-                may_share = False
+                may_share, own_check = False, shared
                 refreshed = True
                 continue
             if not accepted:
@@ -1076,6 +1091,13 @@ class Problem:
                 continue
             step_th = float(np.max(np.abs(a * d[:n_th]))) if n_th else 0.0
             w, r, g = w + a * d, r1, g1
+            if own_check:
+                own_check = False
+                if (a < a_max or lm > 0) and self.opts.share_arc_jacobian:
+                    # each arc's own differences needed the line search too: the
+                    # constraints' curvature, not the sharing, had stopped the full step
+                    may_share, trusted = True, True
+                    log.debug("GN it %d: on the arcs' own differences a step of %.2g: sharing again", it, a)
             lm_step, lm = lm, (lm / 10 if lm > 1e-3 else 0.0)
             feas = float(np.abs(g).max()) if g.size else 0.0
             log.debug("GN it %d: f %.8g |g| %.2e dθ %.2e α %.2g lm %.1e", it, 0.5 * r @ r, feas, step_th, a, lm)
