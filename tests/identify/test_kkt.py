@@ -77,3 +77,15 @@ def test_a_matrix_without_dense_columns_is_solved_whole():
     K = sp.diags([1.0, 2.0, 3.0]).tocsc()
     assert kkt.dense_columns(K).size == 0
     np.testing.assert_allclose(kkt.solve(K, np.ones(3)), [1.0, 0.5, 1 / 3])
+
+
+def test_a_solution_too_large_to_check_is_left_to_the_whole_matrix():
+    """An elimination whose residual check overflows (measured in a diagnosis refit: a
+    near-singular step) is not taken: the whole matrix decides, without a warning."""
+    import warnings
+
+    K, b = _bordered_kkt()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert kkt._eliminated(K, 1e304 * b, kkt.dense_columns(K)) is None  # (x ~1e307, ‖K‖ 835)
+        assert kkt._eliminated(K, b, kkt.dense_columns(K)) is not None
