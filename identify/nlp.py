@@ -885,8 +885,10 @@ class Problem:
         computed again on central ones at the same point, which the rest of the solve
         keeps (the result's ``central``). Forward differences shared among nearly equal
         arcs (``SHARE_TOL``, among the arcs within ``SHARE_FEAS`` of continuity) come before:
-        a full step on them that fails is computed again on each arc's own (the result's
-        ``shared``: whether its last Jacobian was shared).
+        a full step on them that fails is computed again on each arc's own; if that step
+        needs the line search as well, the sharing resumes, its failed full steps then
+        backtracked like any other while the largest violation is at least ``SHARE_FEAS``
+        (the result's ``shared``: whether its last Jacobian was shared).
         """
         opts = self.opts
         t0 = time.perf_counter()
