@@ -493,10 +493,11 @@ class Problem:
             return w[self.i_s : self.i_s + self.n_s]
         return ca.DM.ones(self.E, 1) * 0.5 if isinstance(w, ca.MX) else np.full(self.E, 0.5)
 
-    def sync_start_positions(self, w: np.ndarray, passes: int = 2) -> np.ndarray:
+    def sync_start_positions(self, w: np.ndarray, passes: int = 2, keep: float = 0.0) -> np.ndarray:
         """w with every start position set to where the previous arc's end puts it (a
         consistent point for the shooting constraints; the end state barely depends on
-        the start, the slip rejuvenating the contact, so two passes suffice)."""
+        the start, the slip rejuvenating the contact, so two passes suffice). A start
+        within ``keep`` of that target stays (its arc, integrated before, is not again)."""
         w = np.array(w, float)
         if not self.n_s or not self.n_trig:
             return w
@@ -504,18 +505,20 @@ class Problem:
         for _ in range(passes):
             Y = self.arcs.evaluate(np.array(self._arc_inputs(w)), self.opts.threads)
             t = np.array(self._s_target_fun(w, Y[:2])).ravel()
-            w[idx] = np.where(np.isfinite(t), t, w[idx])  # an arc that failed keeps its start
+            move = np.isfinite(t) & ~(np.abs(t - w[idx]) <= keep)  # an arc that failed keeps its start
+            w[idx] = np.where(move, t, w[idx])
         return w
 
-    def settle_arcs(self, w: np.ndarray) -> np.ndarray:
+    def settle_arcs(self, w: np.ndarray, keep: float = 0.0) -> np.ndarray:
         """Arcs sized from w's starts, the starts synced to them, and the arcs sized again
         from the synced starts (a lower start slips further and may need a longer
-        horizon), synced again if that changed a horizon."""
+        horizon), synced again if that changed a horizon (``keep``: see
+        :meth:`sync_start_positions`)."""
         self.size_arcs(w)
-        w = self.sync_start_positions(w)
+        w = self.sync_start_positions(w, keep=keep)
         M = self.ev_M.copy()
         self.size_arcs(w)
-        return self.sync_start_positions(w) if not np.array_equal(M, self.ev_M) else w
+        return self.sync_start_positions(w, keep=keep) if not np.array_equal(M, self.ev_M) else w
 
     def mid_state(self, x_prev_m, e0, P, ops=np):
         """The contact state whose capacity sits in the middle of the trigger interval."""

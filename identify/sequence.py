@@ -75,6 +75,10 @@ def _carry_solution(old, new, w: np.ndarray) -> np.ndarray:
     v[new.i_s : new.n_w] = 0.5
     if new.n_s and old.n_s:  # the same runs, each with its first slip, in the same order
         v[new.i_s + new.ev_firsts] = w[old.i_s + old.ev_firsts]
+        # a slip whose trigger and predecessor's trigger are where they were keeps its
+        # start (Problem.settle_arcs moves it only if its target moved: CARRY_START_TOL)
+        same = _unchanged_slips(old, new)
+        v[new.i_s + same[:, 1]] = w[old.i_s + same[:, 0]]
     x_old = w[old.i_x : old.i_x + old.P]
     p_new = p_old = 0
     for ri, r in enumerate(new.runs):
@@ -97,6 +101,25 @@ def _carry_solution(old, new, w: np.ndarray) -> np.ndarray:
     return v
 
 
+# A carried start within this distance (units of its trigger interval) of where the
+# previous arc's end now puts it is not synced: its arc, integrated at the solution the
+# start comes from, is then not integrated again (1e-3 of the interval is 1e-6 µm of slip
+# length, START_SCALE_UM; the solutions carried are feasible to 1e-4 µm or better).
+CARRY_START_TOL = 1e-3
+
+
+def _unchanged_slips(old, new) -> np.ndarray:
+    """(old index, new index) of the slips with a predecessor whose trigger step and
+    predecessor's trigger step are the same in both problems (same run)."""
+    def key(p):
+        prev = np.r_[-1, p.ev_step[:-1]] if p.E else np.zeros(0)
+        return {(int(p.ev_run[e]), int(p.ev_step[e]), int(prev[e])): e for e in p.ev_next}
+
+    ko, kn = key(old), key(new)
+    pairs = [(ko[k], e) for k, e in kn.items() if k in ko]
+    return np.array(pairs, int).reshape(-1, 2)
+
+
 # ----------------------------------------------------------------------------- driver
 def _with_triggers(prob, w, changes: dict, model, values, opts, say):
     """The NLP with the trigger steps of ``changes`` ({run index: steps}) and ``w``
@@ -114,7 +137,7 @@ def _with_triggers(prob, w, changes: dict, model, values, opts, say):
     new.counter = prob.counter  # the timing report covers every solve, not just the last
     new.progress = say
     new.build()
-    return new, new.settle_arcs(_carry_solution(prob, new, w))
+    return new, new.settle_arcs(_carry_solution(prob, new, w), keep=CARRY_START_TOL)
 
 
 def _other_step(steps, detected, j, alt, reach: int = 2):
