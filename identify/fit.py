@@ -714,8 +714,8 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         prob, best, how = _interval_solve(prob, best, final_opts, say)
         start_source += how
     if best.get("shared"):
-        say("the solution on each slip's own differences")
-        best = prob.own_differences(best)
+        say("the solution on the covariance's central differences")
+        best = prob.accurate_differences(best)
     say("covariance")
     prob.progress = None  # the result keeps the problem; the caller's callback is not its business
     result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,

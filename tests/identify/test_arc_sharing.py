@@ -81,8 +81,8 @@ def test_shared_differences_agree_with_each_arcs_own_at_the_solution(small):
 
 
 def test_the_fit_with_shared_differences_ends_where_the_fit_without_does(small):
-    """The fit ends on every arc's own differences
-    (Problem.own_differences), so both fits end converged within the same statistical
+    """The fit ends on the covariance's central differences
+    (Problem.accurate_differences), so both fits end converged within the same statistical
     tolerance (NEAR_TOL: the parameters within 0.045 standard errors in any direction):
     measured, at most 0.035 standard errors apart."""
     a, b = small[True], small[False]
@@ -92,10 +92,11 @@ def test_the_fit_with_shared_differences_ends_where_the_fit_without_does(small):
         assert a[name].stderr == pytest.approx(b[name].stderr, rel=0.02)
 
 
-def test_the_fit_ends_on_each_arcs_own_differences(small, monkeypatch):
-    """A solve that ended on shared differences goes on from there on the arcs' own
-    (Problem.own_differences), the fit's last step: from the fit's solution a solve on
-    them ends at once, converged."""
+def test_the_fit_ends_on_the_covariances_central_differences(small, monkeypatch):
+    """A solve that ended on shared forward differences goes on from there on the
+    covariance's central ones (Problem.accurate_differences), the fit's last step: from
+    the fit's solution a solve on them ends at once, converged, and the covariance after
+    it integrates no arc again (its differences are remembered)."""
     res = small[True]
     prob = res.problem
     w0 = prob.initial_w({"mu_max": 0.75, "mu_min": 0.5, "tau": 0.08, "A": 0.012})
@@ -103,19 +104,24 @@ def test_the_fit_ends_on_each_arcs_own_differences(small, monkeypatch):
     solve_gn = prob.solve_gn
 
     def recording(w, fixed=None):
-        seen.append(prob._cb_jac_shared())
+        cb = prob._cb_jac
+        seen.append((prob._cb_jac_shared(), cb.scheme, cb.share))
         return solve_gn(w, fixed)
 
     monkeypatch.setattr(prob, "solve_gn", recording)
     sol = prob.solve(w0)
-    assert seen == [True] and sol["shared"] and sol["success"]
-    own = prob.own_differences(dict(sol, slips_inserted=3))
-    assert seen == [True, False] and not own["shared"] and own["success"]
+    assert seen == [(True, "forward", nlp.SHARE_TOL)] and sol["shared"] and sol["success"]
+    own = prob.accurate_differences(dict(sol, slips_inserted=3))
+    assert seen[1:] == [(False, "central", nlp.COVARIANCE_SHARE_TOL)]
+    assert not own["shared"] and own["success"]
     assert own["slips_inserted"] == 3  # (the fit's records carried)
     assert own["iterations"] > sol["iterations"]
     assert prob._cb_jac_shared()  # the option's differences again after it
+    n = prob.arcs.n_integrated
+    prob.covariance(own["w"])
+    assert prob.arcs.n_integrated == n
     seen.clear()
-    assert prob.own_differences(own) is own and not seen  # nothing to do
+    assert prob.accurate_differences(own) is own and not seen  # nothing to do
     monkeypatch.undo()
     prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP, share=False)
     end = prob.solve_gn(res.w.copy())
