@@ -654,14 +654,17 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
 
         say("start: aging from the triggers, then the slip parameters from slip lengths")
         staged, stages = staged_start(prob, start, seed=opts.seed or 0)
-        m_from, m_staged = start_merit(prob, start), start_merit(prob, staged)
+        m_from = start_merit(prob, start)
+        w_staged = prob.initial_w(staged)
+        m_staged = start_merit(prob, staged, w_staged)
         log.info("staged start %s (χ² %.6g) from %s (χ² %.6g)", staged, m_staged, start_given, m_from)
         if m_staged <= m_from:
-            start = staged
+            start, w0 = staged, w_staged  # (made last: the arcs are sized as it left them; 0.3 s of 10 runs)
             start_source += " -> staged (triggers, slip lengths)"
         else:
             start_source += f" (staged start rejected: χ² {m_staged:.4g} > {m_from:.4g})"
-    w0 = prob.initial_w(start)
+    if start is not staged:
+        w0 = prob.initial_w(start)
     starts = [w0]
     rng = np.random.default_rng(opts.seed)
     for _ in range(opts.multistart):

@@ -161,13 +161,14 @@ def staged_start(prob, start_values: dict, max_slips: int = 80, seed: int = 0) -
     return out, info
 
 
-def start_merit(prob, start_values: dict) -> float:
+def start_merit(prob, start_values: dict, w: np.ndarray | None = None) -> float:
     """χ² of the full problem at a start: its residuals plus each slip's length misfit in
     units of its noise (the shooting constraints, which the start leaves violated; the
     plateaus sit at the frames). Lower is better; the staged start is kept only where it
     is lower than the start it came from (measured: with two conditions, each a locked
-    phase, the aging stage put τ 8× too high, A at 0, and the fit ended in that basin)."""
-    w = prob.initial_w(start_values)
+    phase, the aging stage put τ 8× too high, A at 0, and the fit ended in that basin).
+    ``w``: the start's point, ``prob.initial_w(start_values)``, if already made."""
+    w = prob.initial_w(start_values) if w is None else w
     r, g = prob.evaluate(w)
     if not prob.E:
         return float(r @ r)
