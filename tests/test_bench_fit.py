@@ -5,6 +5,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent / "bench"))
@@ -59,3 +60,20 @@ def test_summary_command(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         bench_fit.main(["summary", str(tmp_path / "none.jsonl")])
     assert e.value.code == 2 and "no such file" in capsys.readouterr().err
+
+
+def test_growth_fits_the_slope_and_gives_each_step():
+    """The speed benchmark's growth: the slope of log(wall) on log(runs), and each step's
+    own exponent (a size that costs more than its share shows there, not in the slope)."""
+    rows = [dict(runs=2, wall_s=4.0), dict(runs=5, wall_s=40.0), dict(runs=10, wall_s=20.0),
+            dict(runs=20, wall_s=40.0)]
+    g = bench_fit.growth(rows)
+    assert [s["runs"] for s in g["growth_steps"]] == [[2, 5], [5, 10], [10, 20]]
+    assert g["growth_steps"][2]["exponent"] == pytest.approx(1.0)
+    assert g["growth_steps"][1]["exponent"] == pytest.approx(-1.0)
+    assert g["growth_steps"][0]["exponent"] == pytest.approx(np.log(10) / np.log(2.5))
+    x, y = np.log([2, 5, 10, 20]), np.log([4.0, 40.0, 20.0, 40.0])
+    assert g["growth_exponent"] == pytest.approx(np.polyfit(x, y, 1)[0])
+    linear = bench_fit.growth([dict(runs=n, wall_s=3.0 * n) for n in (2, 10, 20)])
+    assert linear["growth_exponent"] == pytest.approx(1.0)
+    assert bench_fit.growth([dict(runs=10, wall_s=27.0)]) == {}

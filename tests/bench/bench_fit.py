@@ -3,7 +3,7 @@ they print what they measure.
 
     python tests/bench/bench_fit.py calibration --repeats 50 [--workers 2] [--jitter-load 0.05]
         [--record cal.jsonl] [--seeds LO-HI]
-    python tests/bench/bench_fit.py speed [--runs 2,5,10] [--steps 2000]
+    python tests/bench/bench_fit.py speed [--runs 2,5,10,20] [--steps 2000]
     python tests/bench/bench_fit.py summary cal.jsonl
 
 calibration: each repeat simulates the design (the same noiseless runs every time), draws new 90 nm
@@ -264,6 +264,21 @@ def summary_of_record(record: str) -> dict:
     return dict(record=record, contexts=out)
 
 
+def growth(rows: list) -> dict:
+    """How the wall time grows with the number of runs: the least-squares slope of
+    log(wall) on log(runs) (``growth_exponent``, 1 = linear) and the slope between
+    neighbouring sizes (``growth_steps``): a fitted slope hides one size that costs more
+    than its share, as the 5-run set does. Empty with fewer than two sizes."""
+    sizes = sorted({r["runs"] for r in rows})
+    if len(sizes) < 2:
+        return {}
+    wall = {n: min(r["wall_s"] for r in rows if r["runs"] == n) for n in sizes}
+    x, y = np.log(sizes), np.log([wall[n] for n in sizes])
+    steps = [dict(runs=[int(a), int(b)], exponent=float(np.log(wall[b] / wall[a]) / np.log(b / a)))
+             for a, b in zip(sizes, sizes[1:])]
+    return dict(growth_exponent=float(np.polyfit(x, y, 1)[0]), growth_steps=steps)
+
+
 def speed(n_runs_list, steps: int, coating: str) -> dict:
     truth = _truth(coating)
     start = _start(truth)
@@ -295,11 +310,10 @@ def speed(n_runs_list, steps: int, coating: str) -> dict:
         print("        errors " + ", ".join(f"{k} {v:+.2%}" for k, v in row["rel_error"].items())
               + f"; reduced chi2 {row['reduced_chi2']:.3g}; start: {row['start']}", flush=True)
     out = dict(coating=coating, steps=steps, rows=rows)
-    if len(rows) >= 2:
-        x = np.log([r["runs"] for r in rows])
-        y = np.log([r["wall_s"] for r in rows])
-        out["growth_exponent"] = float(np.polyfit(x, y, 1)[0])
-        print(f"  time grows as runs^{out['growth_exponent']:.2f} (1 = linear)")
+    out.update(growth(rows))
+    if "growth_exponent" in out:
+        print(f"  time grows as runs^{out['growth_exponent']:.2f} (1 = linear; fitted over all sizes); "
+              + ", ".join(f"{g['runs'][0]}->{g['runs'][1]}: ^{g['exponent']:.2f}" for g in out["growth_steps"]))
     ten = [r for r in rows if r["runs"] == 10]
     if ten:
         print(f"  10 runs: {ten[0]['wall_s']:.1f} s (target < 30 s, goal 10 s) -> "
@@ -323,7 +337,8 @@ def main(argv=None) -> int:
     r = sub.add_parser("summary", help="the calibration table of a record file, without fitting")
     r.add_argument("record", metavar="FILE")
     s = sub.add_parser("speed")
-    s.add_argument("--runs", default="2,5,10")
+    s.add_argument("--runs", default="2,5,10,20", help="run counts to fit (runs 11-20 repeat the ten conditions "
+                   "with other noise); default %(default)s")
     s.add_argument("--steps", type=int, default=2000)
     s.add_argument("--coating", default="FOTAS")
     for p in (c, s, r):
