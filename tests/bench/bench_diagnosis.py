@@ -14,13 +14,16 @@ magnitude at which it is still named (or reported confounded). ``a+b``: both eff
 in one data set (forward selection must name each).
 
 ``speed``: one full diagnosis of the 8-run withheld-conditions set (identify.withheld.CONDITIONS) with all candidates and
-leave-one-run-out, against the time of its own baseline fit measured in the same run.
+leave-one-run-out, against the time of its own baseline fit measured in the same run;
+and its peak memory (resident set) against the process's own after that fit: the
+workers' largest, and this process's after the diagnosis.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import resource
 import sys
 import time
 from pathlib import Path
@@ -125,11 +128,19 @@ def confusion(args):
               f"{';'.join('|'.join(g) for g in r['confounded']) or '-':30s} {ho:>16s}")
 
 
+def peak_rss_mb(who: str = "self") -> float:
+    """Peak resident set size in MB of this process (``self``) or of its largest child
+    that has ended (``children``: the diagnosis's worker processes, once shut down)."""
+    usage = resource.getrusage(resource.RUSAGE_SELF if who == "self" else resource.RUSAGE_CHILDREN)
+    return usage.ru_maxrss / (1024 * 1024 if sys.platform == "darwin" else 1024)  # (bytes there, kB on Linux)
+
+
 def speed(args):
     traces = withheld_dataset(None, conditions=CONDITIONS)
     t0 = time.perf_counter()
     base = identify.fit(traces, options=_baseline_options(None))
     t_fit = time.perf_counter() - t0
+    mem_fit = peak_rss_mb()
     t1 = time.perf_counter()
     res = diagnose(None, baseline=base, options=DiagnosisOptions(workers=args.workers),
                    progress=_stamped if args.progress else None)
@@ -147,6 +158,11 @@ def speed(args):
     total = sum(w for w, *_ in walls)
     print(f"the candidates' refits sum to {total:.1f} s of worker time, {total / args.workers:.1f} s per worker "
           f"against the diagnosis's {t_diag:.1f} s")
+    # (each worker keeps the arcs it integrated, per candidate model, up to MEMO_MAX each)
+    mem_self, mem_worker = peak_rss_mb(), peak_rss_mb("children")
+    print(f"peak memory: {mem_fit:.0f} MB after the baseline fit; this process {mem_self:.0f} MB "
+          f"({mem_self / mem_fit:.2f}×) after the diagnosis, its largest worker {mem_worker:.0f} MB "
+          f"({mem_worker / mem_fit:.2f}×)" + ("" if args.workers > 1 else " (no worker processes with --workers 1)"))
 
 
 def main(argv=None):
