@@ -793,15 +793,16 @@ class Problem:
         that only decide (mode-sequence trials, loose solves) stop on shared ones.
         Measured: the noiseless test fit's interval solve ended 8e-4 off in τ on shared
         differences (see also NEAR_SHARE), 5.7e-5 after this step on each arc's own
-        forward differences, 6.4e-5 on these; on the 10-run speed set this step took
-        0.4 s against 2.1 s, the estimates the same to every printed digit."""
+        forward differences, 6.4e-5 on these (4.4e-5 since the merit's weights per
+        constraint); on the 10-run speed set this step took 0.4 s against 2.1 s, the
+        estimates the same to every printed digit."""
         if not res.get("shared") or not np.isfinite(res["f"]):
             return res
         self.central_differences()
         try:
             more = self._solve_gn_resolved(res["w"], fixed)
         except Exception as err:  # the shared solution stands
-            log.info("the solve on the arcs' own differences after a shared one failed: %s", err)
+            log.info("the solve on the covariance's differences after a shared one failed: %s", err)
             return res
         finally:
             self.jacobian_scheme(self.opts.arc_jacobian, SOLVE_REL_STEP)
