@@ -1036,8 +1036,8 @@ class Problem:
             # full steps cut ½χ² by 1.6e3; per constraint, α = 1 from its fourth on
             if lam.size:
                 nu = np.maximum(nu, 1.1 * np.abs(lam))
-            phi0 = 0.5 * r @ r + _l1(nu, g)
-            dphi = grad @ d - _l1(nu, g)
+            pen = _l1(nu, g)
+            phi0, dphi = 0.5 * r @ r + pen, grad @ d - pen
             a, accepted, d_gn = a_max, False, d  # (d_gn: the step before any correction)
             # backtracking stops where the step could gain less than stat_tol: steps that
             # short are the arcs' integration noise, not progress (measured on a stalled
