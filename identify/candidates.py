@@ -399,8 +399,13 @@ realistic magnitude (:func:`_at_magnitude`) when, with the effect held there, it
 estimate moves by at least :data:`MAGNITUDE_MOVED_Z` of its standard errors, or its
 standard error grows by :data:`MAGNITUDE_WIDER` or more — half its information or more
 gone, a variance inflation of 2 — or it becomes undetermined: were the effect there, its
-stated value or its stated uncertainty would not hold. (Measured, the damping set: A,
-μmin and μmax 1.68–1.71×, τ 1.02×; motion blur on model-made data: ≤ 1.01×.)"""
+stated value or its stated uncertainty would not hold. Both are measured against what
+the current model states: the standard errors with the effect's parameter held where
+the refit has it (at its null, the current model's own), not the refit's, whose freed
+parameter may already have unpinned them. (Measured, the damping set: A, μmin and μmax
+1.68–1.71×, τ 1.02× at 3896163; 8.0–8.7× and 3.5× at 2eb2dc5, where against the refit's
+own, c_extra free at 0 ± 5.3e-5, they were 1.40×, just short; motion blur on model-made
+data: ≤ 1.01×.)"""
 
 
 def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: dict) -> dict:
@@ -420,7 +425,10 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
     simulated, slips shorten with c up to ~2e-5 N s/m at A = 0.015 and not beyond, and
     not at all at A = 0.0236 — past that much damping (from A or c) a slip ends without
     overshoot. So it is the standard errors that tell: with c held there the baseline's
-    A, μmax and μmin are confounded (A ± 0.0117 against ± 0.0035).
+    A, μmax and μmin are confounded (A ± 0.0117 against ± 0.0035; at 2eb2dc5 ± 0.0268
+    against ± 0.0033). The reference is the baseline's own standard error, c held at the
+    refit's value, not the refit's with c free: on that set the refit's c_extra is
+    0 ± 5.3e-5 and its A ± 0.019, which made the ± 0.0268 look only 1.4× wider.
 
     So the candidate is solved again with its parameter held at the realistic magnitude
     (from the refit, same mode sequence), and its χ² compared with the refit's: within
@@ -481,23 +489,20 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
     better = bool(settled and 2 * dnll < -need)
     absorbed = bool(-need <= 2 * dnll <= need) if settled else None
     got = dict(zip(names, (float(v) for v in prob.theta.from_scaled(sol["w"][: prob.n_theta]))))
-    se_m = {}
+    se_m, stated = {}, {}
     if absorbed:
-        from .report import _stderrs
-
-        try:  # with the effect held at its magnitude (known, as the current model knows its null)
-            C = prob.covariance(sol["w"], fixed_idx=[i], robust=True)
-            se_m = {n: x[0] for n, x in zip(names, _stderrs(prob.theta, sol["w"][: prob.n_theta], C, 1.0))}
-        except Exception:  # the moves alone then
-            se_m = {}
-        if not any(v is not None and np.isfinite(v) for n, v in se_m.items() if n != name):
-            se_m = {}  # a covariance that failed as a whole says nothing of any one parameter
+        # with the effect held at its magnitude, and, as the reference, held where the
+        # refit has it (at its null: the current model's own standard errors)
+        se_m = _held_stderrs(prob, sol["w"], i)
+        stated = _held_stderrs(prob, w, i) if se_m else {}
     moved = []
     for n in names:
-        se = (est.get(n) or {}).get("stderr")
+        se_refit = (est.get(n) or {}).get("stderr")
+        se = stated.get(n) or se_refit
         if n == name or not se or not np.isfinite(se) or se <= 0:
             continue
-        m = dict(parameter=n, value=vals[n], at_magnitude=got[n], z=float((got[n] - vals[n]) / se), stderr=float(se))
+        m = dict(parameter=n, value=vals[n], at_magnitude=got[n], z=float((got[n] - vals[n]) / se), stderr=float(se),
+                 stderr_refit=float(se_refit) if se_refit and np.isfinite(se_refit) else None)
         if se_m:
             s2 = se_m.get(n)
             ok = s2 is not None and np.isfinite(s2)
@@ -517,6 +522,20 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
                 needed_delta_nll=0.5 * need, absorbed=absorbed, better=better, partners=partners,
                 moved=moved[:max(4, len(partners))], stderr_checked=bool(se_m), status=sol["status"],
                 iterations=int(sol["iterations"]), lower_bound=bool(sol["status"] == GAVE_UP and absorbed is False))
+
+
+def _held_stderrs(prob, w: np.ndarray, i: int) -> dict:
+    """Each parameter's robust standard error at w with parameter i held (known); {} when
+    the covariance fails as a whole (it then says nothing of any one parameter)."""
+    from .report import _stderrs
+
+    try:
+        C = prob.covariance(w, fixed_idx=[i], robust=True)
+    except Exception:
+        return {}
+    se = {n: x[0] for j, (n, x) in enumerate(zip(prob.theta.names, _stderrs(prob.theta, w[: prob.n_theta], C, 1.0)))
+          if j != i}
+    return se if any(v is not None and np.isfinite(v) for v in se.values()) else {}
 
 
 def _could_be_named(task: CandidateTask, chi2: float, n_eff: int, n_obs: int) -> bool:

@@ -43,16 +43,21 @@ class _Problem:
         return dict(f=0.5 * self.chi2_at, w=w, status=self.status, success=self.status == "Solve_Succeeded",
                     iterations=3)
 
+    se_at_null, se_at_magnitude = 0.0035, 0.0035  # A's, with c_extra held at the refit's / the magnitude
+
     def covariance(self, w, fixed_idx, robust):
-        return np.diag([1e-4, 0.0])
+        assert list(fixed_idx) == [1]  # c_extra known, as the current model knows its null
+        se = self.se_at_magnitude if w[1] > 0 else self.se_at_null
+        return np.diag([float(_TM.to_scaled({"A": 0.0236 + se})[0] - _TM.to_scaled({"A": 0.0236})[0]) ** 2, 0.0])
 
 
-def _check(chi2_at, shift=0.0, refit_chi2=1000.0, status="Solve_Succeeded"):
+def _check(chi2_at, shift=0.0, refit_chi2=1000.0, status="Solve_Succeeded", se_refit=0.0035, se_at_magnitude=0.0035):
     prob = _Problem(chi2_at, shift, status)
+    prob.se_at_magnitude = se_at_magnitude
     task = CandidateTask(effect="damping", runs=[], law="exponential", values={}, free=("A",),
                          extra=("c_extra",), null_chi2=1001.0, magnitude=("c_extra", 2e-5))
     w = prob.theta.to_scaled({"A": 0.0236, "c_extra": 0.0})
-    est = {"A": dict(value=0.0236, stderr=0.0035)}
+    est = {"A": dict(value=0.0236, stderr=se_refit)}  # the refit's, c_extra free
     out = _at_magnitude(task, prob, w, refit_chi2, est)
     return out, prob
 
@@ -70,10 +75,26 @@ def test_fits_as_well_there_absorbed_with_the_parameters_it_moves():
     assert out["absorbed"] is True and out["better"] is False
     assert out["delta_nll"] == pytest.approx((NEED - 0.1) / 2)
     (a,) = out["moved"]
-    assert a["at_magnitude"] == pytest.approx(0.018) and a["z"] == pytest.approx((0.018 - 0.0236) / 0.0035)
+    assert a["at_magnitude"] == pytest.approx(0.018) and a["z"] == pytest.approx((0.018 - 0.0236) / 0.0035, rel=1e-3)
     assert out["partners"] == ["A"] and out["stderr_checked"]
     out, _ = _check(1000.2, shift=0.0)
     assert out["absorbed"] and out["partners"] == []  # seen by nothing
+
+
+def test_unpinned_there_against_the_uncertainty_the_current_model_states():
+    """The damping set (measured at 2eb2dc5): held at 2e-5 N s/m the solve stands as it
+    is (nothing moves) and A is ± 0.0268 there; the refit, c_extra free, had A ± 0.019
+    (c_extra itself 0 ± 5.3e-5), so against the refit's own standard error A looked only
+    1.4× wider. The reference is the current model's: c_extra held where the refit has
+    it (its null), A ± 0.0035 — 7.7× wider: A is the partner."""
+    out, _ = _check(1000.2, se_refit=0.019, se_at_magnitude=0.0268)
+    (a,) = out["moved"]
+    assert a["z"] == 0.0 and a["stderr"] == pytest.approx(0.0035, rel=1e-3) and a["stderr_refit"] == 0.019
+    assert a["wider"] == pytest.approx(0.0268 / 0.0035, rel=1e-3)
+    assert out["absorbed"] and out["partners"] == ["A"]
+    # as certain there as at the null: nothing unpinned, whatever the refit's own error
+    out, _ = _check(1000.2, se_refit=0.019, se_at_magnitude=0.0036)
+    assert out["partners"] == [] and out["moved"][0]["wider"] == pytest.approx(0.0036 / 0.0035, rel=1e-3)
 
 
 def test_excluded_there_beyond_the_quantile():

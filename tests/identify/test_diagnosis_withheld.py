@@ -59,14 +59,9 @@ def test_an_effect_outside_the_library_is_unexplained():
                                  # v_stick 1e-4 against the baseline's 1e-5: mimicked by μmax, μmin, τ
                                  "stick_threshold",
                                  # not seen near its null, nor at 2e-5 N s/m: past that much damping a slip
-                                 # ends without overshoot, so A absorbs it; confounded at its magnitude
-                                 pytest.param("damping", marks=pytest.mark.xfail(reason=(
-                                     "measured 2026-11-26 at d620e7e, 5a745ec and 420da57: not named and not "
-                                     "confounded; held at 2e-5 N s/m it fits as well (Δnll -1.0 to -1.7) but no "
-                                     "parameter's standard error widens by MAGNITUDE_WIDER, so the diagnosis says "
-                                     "the data do not see it there. Passed at 3896163 (A, μmin, μmax 1.7× wider "
-                                     "there); the baseline fit has ended elsewhere since (Maximum_Iterations_Exceeded "
-                                     "or Stalled_Within_Tolerance at the noise floor). Not bisected"), strict=False))])
+                                 # ends without overshoot, so A absorbs it; confounded at its magnitude (A,
+                                 # μmax, μmin 8-9× and τ 3.5× less certain there than the baseline states)
+                                 "damping"])
 def test_withheld_effect_is_named(eid):
     traces = withheld_dataset(eid, conditions=CONDITIONS, base={"A": 0.015})
     res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
