@@ -114,8 +114,10 @@ class Effect:
         null = 0.0 if null is None else float(null)
         return null + scale * (float(value) - null)
 
-    def simulation_values(self, magnitude: float | None = None) -> dict:
-        """Parameter values that switch the effect on (for withheld-effect data sets)."""
+    def simulation_values(self, magnitude: float | None = None, values: Mapping[str, float] | None = None) -> dict:
+        """Parameter values that switch the effect on (withheld-effect data sets, the
+        regime screen); ``values``: the model's others (an aging law's own parameters are
+        set from them)."""
         name, value, _ = self.magnitude
         return {name: float(value if magnitude is None else magnitude)}
 
@@ -169,8 +171,14 @@ class AgingLogarithmic(Effect):
     touches = ("static_friction", "static_friction_vs_rest")
     magnitude = ("law", "logarithmic", "")
 
-    def simulation_values(self, magnitude=None):
-        return {}
+    def simulation_values(self, magnitude=None, values=None):
+        """μ0 and B with the exponential law's static friction at similar rests:
+        μs(t) = μ0 + B·ln(1 + vc·t/dc) through μmin at 0 and μmax at 1 s of rest."""
+        if values is None:
+            return {}
+        vc, dc = values["vc"], values["dc"]
+        B = (values["mu_max"] - values["mu_min"]) / math.log(1 + vc * 1.0 / dc)
+        return dict(mu_0=float(values["mu_min"]), B=float(B))
 
 
 class AgingLogistic(Effect):
@@ -184,8 +192,8 @@ class AgingLogistic(Effect):
     touches = ("static_friction", "static_friction_vs_rest")
     magnitude = ("law", "logistic", "")
 
-    def simulation_values(self, magnitude=None):
-        return {}
+    def simulation_values(self, magnitude=None, values=None):
+        return {}  # the same parameters, another curve shape
 
 
 class Rejuvenation(Effect):
@@ -287,7 +295,7 @@ class Topography(Effect):
     touches = ("position", "static_friction", "slip_length")
     magnitude = ("topo_amp", 0.03, "-")
 
-    def simulation_values(self, magnitude=None):
+    def simulation_values(self, magnitude=None, values=None):
         return {"topo_amp": float(0.03 if magnitude is None else magnitude), "topo_wavelength": 4e-6,
                 "topo_phase": 0.7}
 

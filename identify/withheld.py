@@ -76,9 +76,7 @@ def withheld_dataset(effect: str | Sequence[str] | None, magnitude: float | Sequ
         eff = get_effect(eid)
         if eff.law is not None:
             law = eff.law
-            truth.update(_law_truth(eff.law, truth))
-        else:
-            truth.update(eff.simulation_values(mag))
+        truth.update(eff.simulation_values(mag, truth))
     traces = []
     camera = {n: truth.pop(n) for n in ("exposure", "drift_rate", "e_offset") if n in truth}
     for i, (k, nb, fp, travel) in enumerate(conditions):
@@ -113,16 +111,6 @@ def _effects_and_magnitudes(effect, magnitude) -> tuple[list, list]:
     if len(laws) > 1:
         raise ValueError(f"effect: {laws} are aging laws; the data can follow only one")
     return ids, mags
-
-
-def _law_truth(law: str, truth: dict) -> dict:
-    """Parameters of another aging law with the coating's static friction at similar rests."""
-    if law == "logistic":
-        return {}  # same parameters, another curve shape
-    # logarithmic: μs(t) = μ0 + B·ln(1 + vc·t/dc) through μmin at 0 and μmax at 1 s of rest
-    vc, dc = truth["vc"], truth["dc"]
-    B = (truth["mu_max"] - truth["mu_min"]) / np.log(1 + vc * 1.0 / dc)
-    return dict(mu_0=truth["mu_min"], B=float(B))
 
 
 def _with_nominal_load(trace, nominal_N: float):
