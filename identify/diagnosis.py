@@ -193,6 +193,9 @@ class DiagnosisResult:
     options: DiagnosisOptions
     timing: dict
     notes: list = field(default_factory=list)
+    # no baseline (every run left out for its regime): the current model, then each
+    # candidate at its realistic magnitude, against the runs' regime (identify.regime_screen)
+    regime_screen: list = field(default_factory=list)
     final_problem: Any = field(repr=False, default=None)
     final_w: Any = field(repr=False, default=None)
 
@@ -239,6 +242,15 @@ class DiagnosisResult:
                          f"{c['gap_before_um']:6.3f}->{c['gap_after_um']:<7.3f} "
                          f"{c['heldout_gap_before_um']:6.3f}->{c['heldout_gap_after_um']:<7.3f} "
                          f"{c.get('heldout_delta_nll', float('nan')):9.2f}  {c['note']}")
+        if self.regime_screen:
+            L.append("[[Regime screen]] (no baseline: the preset, each candidate at its realistic magnitude)")
+            L.append(f"    {'model':24s} {'runs parting':>13s} {'χ²':>9s}  note")
+            for r in self.regime_screen:
+                rc = r.get("regime") or {}
+                name = r["effect"] or "(current model)"
+                part = f"{r['mismatched']} of {rc['df']}" if rc else "-"
+                note = "reproduces the regime" if r["reproduces_regime"] else (r.get("error") or "")
+                L.append(f"    {name:24s} {part:>13s} {rc.get('chi2', float('nan')):9.1f}  {note}")
         for n in self.notes:
             L.append(f"    note: {n}")
         return "\n".join(L)
@@ -257,7 +269,7 @@ class DiagnosisResult:
                          workers=self.options.workers, dask=bool(self.options.dask),
                          gap_tolerance=self.options.gap_tolerance, resequence=self.options.resequence,
                          magnitude_check=self.options.magnitude_check),
-            timing=self.timing, notes=self.notes,
+            timing=self.timing, notes=self.notes, regime_screen=self.regime_screen,
         )
 
     def save_json(self, path) -> Path:
@@ -302,29 +314,67 @@ def _cand_json(c: dict) -> dict:
 REGIME_MISMATCH = "no resolvable slips and the model predicts stick-slip"
 
 
-def _regime_mismatch(excluded, opts: "DiagnosisOptions", t0: float) -> "DiagnosisResult":
+def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float,
+                     say: Callable[[str], None]) -> "DiagnosisResult":
     """No run has a resolvable slip where the model, at the start parameters, stick-slips
     in every one (measured: logistic-law data, which never re-age after a slip): there is
     nothing to fit, and so no baseline to refine — a gap between the model and every run,
-    which no candidate can be scored on. The verdict is ``unexplained``, with the regime
-    named as where the misfit lives."""
+    which no candidate can be scored on by a refit. The verdict is ``unexplained``, with
+    the regime named as where the misfit lives, and each candidate screened at its
+    realistic magnitude against the runs' regime (:mod:`identify.regime_screen`): which
+    of them could make such runs, said, not named."""
+    from .regime_screen import regime_screen
     from .where import Misfit, misfit_sigma
 
+    excluded = err.excluded
     n = len(excluded)
+    current, screen = None, []
+    if err.regime_runs:
+        say(f"no baseline: screening the candidates on the {len(err.regime_runs)} run(s) left out for their regime")
+        current, screen = regime_screen(opts.effects, fopts.law, fopts.free, err.values, err.regime_runs, say)
+    rc = (current or {}).get("regime") or {}
+    p = float(rc["p_value"]) if rc.get("df") else 0.0
     detail = (f"{n} of {n} runs show no resolvable slip, where the model at the coating's preset "
               "stick-slips: " + "; ".join(f"{name}: {why}" for name, why in excluded))
-    where0 = [Misfit(feature="regime", misfit_sigma=misfit_sigma(0.0), p_value=0.0, statistic=float(n), detail=detail)]
+    if rc.get("df"):
+        detail += (f"; read as the data were, {len(rc['mismatched'])} of {rc['df']} part from it "
+                   f"(χ² {rc['chi2']:.1f}, df {rc['df']})")
+    where0 = [Misfit(feature="regime", misfit_sigma=misfit_sigma(p), p_value=p,
+                     statistic=float(rc.get("chi2", n)), detail=detail)]
     nan = float("nan")
+    notes = ["no baseline could be fitted: no run shows a resolvable slip where the model stick-slips in "
+             "every one, so no candidate could be scored by a refit and the data carry no slip to compare the "
+             "friction law with (record runs that stick-slip, or fit the creep levels from parameters under "
+             "which the model creeps)"]
+    if screen:
+        notes.append(_screen_note(current, screen))
     return DiagnosisResult(
         verdict="unexplained", effects=[], where=where0, where_final=where0, candidates=[], rounds=[],
         baseline=None, final=dict(law=None, free=[], values={}, gap_um=nan, heldout_gap_um=nan, noise_um=nan,
                                   heldout_gap_ratio=nan),
         confounded=[], options=opts, timing=dict(total_s=time.perf_counter() - t0, refits=0, baseline_fit_s=nan),
-        notes=["no baseline could be fitted: no run shows a resolvable slip where the model stick-slips in "
-               "every one, so no candidate could be scored and the data carry no slip to compare the friction "
-               "law with (record runs that stick-slip, or fit the creep levels from parameters under which "
-               "the model creeps)"],
+        notes=notes, regime_screen=([dict(current)] if current else []) + screen,
     )
+
+
+def _screen_note(current: dict, screen: list) -> str:
+    """What the regime screen found, in a sentence: which candidates make runs like the
+    data's, against the current model — a pointer, not a name."""
+    def runs(r):
+        rc = r.get("regime") or {}
+        return f"{r['mismatched']} of {rc['df']} runs, χ² {rc['chi2']:.1f}" if rc else f"? ({r['error']})"
+
+    yes = [r for r in screen if r["reproduces_regime"]]
+    others = [r for r in screen if not r["reproduces_regime"] and r.get("regime")]
+    head = (f"regime screen (the coating's preset, each candidate at its realistic magnitude, the runs read as "
+            f"the data were): the current model parts from {runs(current)}; ")
+    if not yes:
+        return head + "no candidate reproduces the runs' regime"
+    left = (f"; every other candidate parts from {min(r['mismatched'] for r in others)}-"
+            f"{max(r['mismatched'] for r in others)} runs" if others else "")
+    return (head + ", ".join(r["effect"] for r in yes) + " reproduce" + ("s" if len(yes) == 1 else "")
+            + " it (no run parts)" + left + ". Not named: nothing was fitted (the preset's friction, the "
+            "library's magnitude), so this says which candidate to fit, not that it is the cause")
 
 
 def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None = None,
@@ -361,7 +411,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
         except FitError as err:
             if not err.excluded or not all(REGIME_MISMATCH in why for _, why in err.excluded):
                 raise
-            return _regime_mismatch(err.excluded, opts, t0)
+            return _regime_mismatch(err, fopts, opts, t0, say)
     prob, w = baseline.problem, baseline.w
     fopts = prob.opts
     runs = prob.runs

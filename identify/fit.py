@@ -37,11 +37,16 @@ DEFAULT_FREE = ("mu_max", "mu_min", "tau", "A")
 class FitError(ValueError):
     """Nothing could be fitted (every run was left out, or the solver failed).
 
-    ``excluded`` lists (run name, why) for runs that were left out."""
+    ``excluded`` lists (run name, why) for runs that were left out; ``regime_runs`` those
+    of them left out for their regime (:class:`identify.regime_check.RegimeRun`), and
+    ``values`` the parameter values their regime was judged at (the diagnosis screens
+    its candidates on them, :mod:`identify.regime_screen`)."""
 
-    def __init__(self, message: str, excluded=()):
+    def __init__(self, message: str, excluded=(), regime_runs=(), values=None):
         super().__init__(message)
         self.excluded = list(excluded)
+        self.regime_runs = list(regime_runs)
+        self.values = dict(values or {})
 
 
 @dataclass(frozen=True)
@@ -227,7 +232,7 @@ def _check_left_out(result, model, prob, say) -> None:
     ``result.runs`` gains ``model_regime`` and ``model_slip_um``, and their reason says
     when the fitted model stick-slips where the camera saw no saw-tooth (a gap between
     model and data that :func:`identify.diagnose` weighs). The fit stands if this fails."""
-    from .regime_check import regime_check
+    from .regime_check import regime_check, slips_text
 
     if not result.regime_runs:
         return
@@ -246,8 +251,8 @@ def _check_left_out(result, model, prob, say) -> None:
         if entry["name"] in bad:
             entry["reason"] += (
                 "; at the fitted values the model, sampled and read as the data were, stick-slips there "
-                f"with {rec['model_slip_um']:.2f} µm slips (the data: {rec['data_slip_um']:.2f} µm, not "
-                "resolvable): model and data part here (identify diagnose weighs it)")
+                f"({slips_text(rec)}; the data's not resolvable): model and data part here (identify "
+                "diagnose weighs it)")
     if bad:
         say(f"warning: the fitted model stick-slips in {len(bad)} run(s) left out without resolvable slips: "
             + ", ".join(sorted(bad)))
@@ -639,7 +644,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         run_data = kept
     if not run_data:
         raise FitError("no run could be used: " + "; ".join(f"{n}: {why}" for n, why in excluded) if excluded
-                       else "no run could be used", excluded)
+                       else "no run could be used", excluded, regime_runs=regime_runs, values=values)
     say(f"{len(run_data)} run(s) used, {len(excluded)} left out; building the NLP")
     for r in run_data:
         edge = r.stick_edge(values)

@@ -24,10 +24,18 @@ within ``MERGE_STEPS`` steps of each other are one slip): the median of the piec
 called the model itself a mismatch (z up to 15) in 8 of 225 border runs made by the
 model (A = 0.03; review of 4e901ee), the largest merged slip in none. Its size, per run,
 
-    z = max(L_model − L_data, 0) / (√2·σ̂)     where the model's run is fitted for slips, else 0,
+    z = max(L_model − L_data, S_model − S_data, 0) / (√2·σ̂)
+                                               where the model's run is fitted for slips, else 0,
 
-with L the largest merged slip the extraction found (0 without any): in units of one
-slip's noise as two frames see it. Over the runs χ² = Σz², one degree of freedom each.
+with L the largest merged slip the extraction found and S the largest after the first
+(0 without any): in units of one slip's noise as two frames see it. S is there for data
+that slip once and never again: every run starts from an aged contact, in the data and
+in the model alike, so the first slip is common to laws that differ in everything after
+it. Measured (the withheld logistic-law set, whose contacts never re-age after their
+first slip): by L alone the exponential preset agreed with all 8 runs (z ≤ 0.37, each
+run's first slip 0.9-4.8 µm in both); by S it stick-slips in 6 of them (slips 0.8-4.8 µm
+against the data's 0.4 µm, the noise's own "slips"), χ² 1737, and the logistic law
+agrees with all 8 (χ² 0). Over the runs χ² = Σz², one degree of freedom each.
 Measurement parameters in the values (drift, exposure, zero offset) are applied to the
 model's frames as to a simulated camera's. (Found in review as well: comparing the
 data's σ_e·√12 with simulated slips called the model itself a mismatch — on a run with a
@@ -44,7 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-__all__ = ["RegimeRun", "RegimeCheck", "regime_check", "steps_of", "MISMATCH_Z", "MERGE_STEPS"]
+__all__ = ["RegimeRun", "RegimeCheck", "regime_check", "steps_of", "slips_text", "MISMATCH_Z", "MERGE_STEPS"]
 
 MERGE_STEPS = 2
 """Slip pieces triggered within this many steps of each other are one slip (the event
@@ -72,6 +80,7 @@ class RegimeRun:
     noise_m: float  # σ̂
     # the frames on the model's clock (steps at n/fp): the data's times − step phase/fp
     frame_times_s: tuple = field(default=(), repr=False)
+    steady_slip_m: float = 0.0  # largest merged slip after the run's first (0 without one)
 
     @classmethod
     def of(cls, rd) -> "RegimeRun":
@@ -81,7 +90,8 @@ class RegimeRun:
         t = np.asarray(tr.time_s, float) - float(ev.step_phase) / float(rd.fp)
         return cls(name=rd.name, k=float(rd.k), Nb=float(rd.Nb), fp=float(rd.fp), n_steps=steps_of(rd, minimum=1),
                    frame_rate=float(tr.frame_rate), step_m=float(tr.step_size), data_regime=str(ev.regime),
-                   largest_slip_m=largest_slip(ev), noise_m=float(rd.sigma), frame_times_s=tuple(t.tolist()))
+                   largest_slip_m=largest_slip(ev), noise_m=float(rd.sigma), frame_times_s=tuple(t.tolist()),
+                   steady_slip_m=largest_slip(ev, after_first=True))
 
     def conditions(self):
         from .simulation import RunConditions
@@ -97,22 +107,27 @@ def steps_of(rd, minimum: int = 50) -> int:
     return max(int(minimum), int(steps.max()) if steps.size else 0)
 
 
-def largest_slip(ev) -> float:
+def largest_slip(ev, after_first: bool = False) -> float:
     """The largest slip the extraction found, pieces triggered within
-    :data:`MERGE_STEPS` steps of each other summed as one slip, m; 0 without any."""
+    :data:`MERGE_STEPS` steps of each other summed as one slip, m; 0 without any.
+    ``after_first``: the largest after the run's first (merged) slip."""
     d = np.asarray(ev.slips.get("slip_length_m", []), float)
     if not d.size:
         return 0.0
     trig = np.asarray(ev.slips["trigger_step"], float)
     new = np.r_[True, np.diff(trig) > MERGE_STEPS]
-    return float(np.max(np.abs(np.add.reduceat(d, np.flatnonzero(new)))))
+    merged = np.abs(np.add.reduceat(d, np.flatnonzero(new)))
+    if after_first:
+        merged = merged[1:]
+    return float(merged.max()) if merged.size else 0.0
 
 
 @dataclass
 class RegimeCheck:
     """Each left-out run seen under a model against the data."""
 
-    runs: list  # dicts: name, data_regime, model_regime, data_slip_um, model_slip_um, z, error
+    runs: list  # dicts: name, data_regime, model_regime, data_slip_um, model_slip_um, the *_steady_slip_um
+    # (after the first slip), z, error
     chi2: float
     df: int
     p_value: float
@@ -137,8 +152,17 @@ class RegimeCheck:
                     f"no resolvable slips in either){failed}")
         return (f"{len(bad)} of {self.df} run(s) left out for their regime show no resolvable slips where the model, "
                 "read the same way, stick-slips: " + "; ".join(
-                    f"{r['name']} (model slips {r['model_slip_um']:.2f} µm, data {r['data_slip_um']:.2f} µm, "
-                    f"{r['z']:.0f} σ)" for r in bad) + failed)
+                    f"{r['name']} ({slips_text(r)}, {r['z']:.0f} σ)" for r in bad) + failed)
+
+
+def slips_text(r: dict) -> str:
+    """The slips a run record's mismatch rests on: the largest, or the largest after the
+    first where that is the larger excess (data that slip once and never again)."""
+    steady = (r.get("model_steady_slip_um") or 0.0) - (r.get("data_steady_slip_um") or 0.0)
+    if steady > (r.get("model_slip_um") or 0.0) - (r.get("data_slip_um") or 0.0):
+        return (f"after the first slip, model slips {r['model_steady_slip_um']:.2f} µm, data "
+                f"{r['data_steady_slip_um']:.2f} µm")
+    return f"model slips {r['model_slip_um']:.2f} µm, data {r['data_slip_um']:.2f} µm"
 
 
 def regime_check(model, values: dict, runs) -> RegimeCheck | None:
@@ -155,7 +179,8 @@ def regime_check(model, values: dict, runs) -> RegimeCheck | None:
     out, chi2, df = [], 0.0, 0
     for rr in runs:
         rec = dict(name=rr.name, data_regime=rr.data_regime, data_slip_um=rr.largest_slip_m * 1e6,
-                   model_regime=None, model_slip_um=None, mismatch=False, z=None, error=None)
+                   data_steady_slip_um=rr.steady_slip_m * 1e6, model_regime=None, model_slip_um=None,
+                   model_steady_slip_um=None, mismatch=False, z=None, error=None)
         try:
             # (recorded: the frames of a moving phase need its trajectory)
             sim = simulate_run(model, values, rr.conditions(), SimulationOptions(record=True))
@@ -167,9 +192,10 @@ def regime_check(model, values: dict, runs) -> RegimeCheck | None:
                             metadata=dict(step_size_nm=rr.step_m * 1e9, step_phase=0.0))
             ev = extract_events(tr, noise_m=rr.noise_m)
             fitted_for_slips = _run_data(ev).kind == "events"
-            slip = largest_slip(ev)
-            z = max(slip - rr.largest_slip_m, 0.0) / (math.sqrt(2.0) * rr.noise_m) if fitted_for_slips else 0.0
-            rec.update(model_regime=str(ev.regime), model_slip_um=slip * 1e6,
+            slip, steady = largest_slip(ev), largest_slip(ev, after_first=True)
+            excess = max(slip - rr.largest_slip_m, steady - rr.steady_slip_m, 0.0)
+            z = excess / (math.sqrt(2.0) * rr.noise_m) if fitted_for_slips else 0.0
+            rec.update(model_regime=str(ev.regime), model_slip_um=slip * 1e6, model_steady_slip_um=steady * 1e6,
                        mismatch=bool(fitted_for_slips and z > MISMATCH_Z), z=float(z))
             chi2 += z * z
             df += 1

@@ -284,8 +284,14 @@ def test_runs_without_slips_where_the_model_stick_slips_are_unexplained(tmp_path
     assert [m.feature for m in res.where] == ["regime"] and "2 of 2 runs" in res.where[0].detail
     assert "flat0" in res.where[0].detail and "no baseline could be fitted" in res.notes[0]
     assert "regime" in res.report()
+    # each candidate screened against the runs' regime: the current model, then drift
+    assert [r["effect"] for r in res.regime_screen] == [None, "drift"]
+    parting = res.regime_screen[0]["mismatched"]  # measured: 1 (the 20.3 N/m run: slips 0.56 µm against 0.42, z 1.2)
+    assert parting >= 1 and f"{parting} of 2 part from it" in res.where[0].detail
+    assert "no candidate reproduces" in res.notes[1] and "[[Regime screen]]" in res.report()
     js = json.loads(res.save_json(tmp_path / "d.json").read_text())
     assert js["verdict"] == "unexplained" and js["baseline"] is None and js["where"][0]["feature"] == "regime"
+    assert [r["effect"] for r in js["regime_screen"]] == [None, "drift"]
     assert len(res.save_plots(tmp_path)) == 6
 
 
