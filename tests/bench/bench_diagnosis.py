@@ -94,6 +94,8 @@ def case(eid, scale, quick, workers, seed=0, progress=None):
                 baseline={k: (res.baseline.solver if res.baseline is not None else {}).get(k) for k in ("status", "iterations", "wall_time_s",
                                                                    "triggers_moved", "slips_inserted", "slips_removed")},
                 refit_s={c["effect"]: round(c.get("wall_s") or 0.0, 1) for c in res.candidates if c.get("effect")},
+                # no baseline: the candidates that reproduce the runs' regime (pointed to, not named)
+                screen=[r["effect"] for r in res.regime_screen if r["effect"] and r["reproduces_regime"]],
                 wall_s=time.perf_counter() - t0)
 
 
@@ -124,7 +126,8 @@ def confusion(args):
             print(f"{r['effect']:24s} {r['scale']:6g} error: {r['error']}")
             continue
         ho = f"{r['heldout_before_um'] or float('nan'):.3f}->{r['final_heldout_um']:.3f}"
-        print(f"{str(r['effect']):24s} {r['scale']:6g} {r['verdict']:12s} {','.join(r['named']) or '-':30s} "
+        named = ",".join(r["named"]) or (f"(screen: {','.join(r['screen'])})" if r.get("screen") else "-")
+        print(f"{str(r['effect']):24s} {r['scale']:6g} {r['verdict']:12s} {named:30s} "
               f"{';'.join('|'.join(g) for g in r['confounded']) or '-':30s} {ho:>16s}")
 
 
