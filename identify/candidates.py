@@ -243,6 +243,23 @@ def run_candidate(task: CandidateTask) -> dict:
             if np.isfinite(sol["f"]) and (best is None or sol["f"] < best["f"]):
                 best = sol
         prob.give_up, prob.give_up_feas = _give_up(task, prob), GIVE_UP_FEAS
+        # a refit from one start that ends worse than the current model has not found the
+        # candidate's fit (its null is the current model, or for a law the same friction
+        # under another curve): the starts passed over for a lower χ² are solved too, best
+        # first (FALLBACK_STARTS; several basins are their own diversity already). Measured (the withheld logarithmic-law set, the logarithmic
+        # law's refit): from the staged start (½χ² 7156) it ended Singular_KKT at ½χ²
+        # 242 473 against the current model's 31 742, "worse", so never judged on its own
+        # mode sequence; from the current values (½χ² 30 371) it converges to 5200, with
+        # μ0 0.496, B 0.077, A 0.0139 (the data's 0.484, 0.0794, 0.015), 145 s
+        tried = {id(x[0]) for x in todo}
+        rest = [] if several else sorted((x for x in scored if id(x[0]) not in tried), key=lambda x: x[2])
+        for w0, _, f0 in rest[:FALLBACK_STARTS]:
+            if best is not None and (task.null_chi2 is None
+                                     or 2.0 * best["f"] + const <= task.null_chi2):
+                break
+            sol = _solve_on(prob, w0, f0, nameable)
+            if np.isfinite(sol["f"]) and (best is None or sol["f"] < best["f"]):
+                best = sol
         if best is None:
             raise ValueError("the model cannot be evaluated at any start (an arc or the trigger encoding "
                              "is not finite there)")
@@ -392,6 +409,9 @@ effect, 2026-11-25): held at 2 µN the load offset's solve wandered 0.06-0.14 µ
 continuity at ½χ² 38 000-41 500 (the refit's 175) for its 10 iterations, the spring
 nonlinearity's at ~8400 with 3e-3-0.5 µm off, each ~8 s for "not settled"; past three
 iterations both were 1000s of quantiles above, with promises of 0.01-3500."""
+FALLBACK_STARTS = 1
+"""How many of the starts a refit passed over (a higher χ² at the start than the one it
+solved from) it solves as well when it ends worse than the current model (run_candidate)."""
 MAGNITUDE_MOVED_Z = 1.0
 MAGNITUDE_WIDER = math.sqrt(2.0)
 """A parameter is named as the partner of an effect the data cannot exclude at its

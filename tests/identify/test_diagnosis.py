@@ -1,5 +1,6 @@
 """The diagnosis: held-out runs, feature tests, candidate scoring, verdicts, CLI, executors."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -1328,3 +1329,39 @@ def test_refits_go_to_the_workers_longest_first():
              task("drift"), task("rejuvenation", starts=0)]
     order = [t.effect for t in sorted(tasks, key=_expected_cost, reverse=True)]
     assert order == ["topography", "aging_logistic", None, "damping", "drift", "rejuvenation"]
+
+
+@pytest.mark.parametrize("first_worse", [True, False])
+def test_a_refit_that_ends_worse_than_the_current_model_tries_the_start_it_passed_over(small_fit, monkeypatch,
+                                                                                       first_worse):
+    """FALLBACK_STARTS: the logarithmic law's refit starts from the staged start and from
+    the current values, and solves the one with the lower χ² (measured on the withheld
+    logarithmic set: the staged start, which ended Singular_KKT at ½χ² 2.4e5 against the
+    current model's 3.2e4; from the current values it converged to 5200). Ending worse
+    than the current model, the other start is solved too and the better end kept; ending
+    better, it is not."""
+    import identify.candidates as cand
+    from identify.diagnosis import _tasks
+
+    prob, w = small_fit.problem, small_fit.w
+    r = prob.residuals(w)
+    current = dict(values={**identify.parameter_set("FOTAS"), **prob.values, **small_fit.values},
+                   free=tuple(prob.theta.names), law=prob.law.name, w=w, ev_M=np.array(prob.ev_M),
+                   n_theta=prob.n_theta, chi2=float(r @ r) + prob.chi2_constant(), n_eff=prob.n_effective())
+    tasks, _ = _tasks(["aging_logarithmic"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [])
+    task = dataclasses.replace(next(t for t in tasks if t.effect), folds=[], magnitude=None)
+    half_null = 0.5 * (task.null_chi2 - prob.chi2_constant())
+    solved = []
+
+    def fake(p, w0, f0, nameable=None):  # the first start's end: worse (or better) than the current model
+        solved.append(f0)
+        f = (10.0 * half_null if first_worse else 0.5 * half_null) if len(solved) == 1 else 0.9 * half_null
+        return dict(w=np.array(w0, float), f=f, status="Solve_Succeeded", success=True, iterations=1, rounds=[])
+
+    monkeypatch.setattr(cand, "_solve_on", fake)
+    out = cand.run_candidate(task)
+    assert out["error"] is None, out
+    if first_worse:
+        assert len(solved) == 2 and solved[0] < solved[1]  # the lower start first, then the one passed over
+    else:
+        assert len(solved) == 1
