@@ -172,7 +172,12 @@ def _solve_on(prob, w0, f0: float, nameable=None) -> dict:
             break
         its, wall = its + more["iterations"], wall + more["wall_s"]
         trail.append((more["status"], float(more["f"])))
-        if not (np.isfinite(more["f"]) and more["f"] <= sol["f"]):
+        # a round that converges is kept even at a higher ½χ²: the point it continued from
+        # stopped off continuity, where ½χ² is not yet the model's (measured, the load
+        # offset's refit on the two-effect withheld set: ½χ² 4263.99 at |g| 3.8e-5 µm after
+        # round 1, 4265.52 converged at 8.8e-7 in one more iteration; the refit was reported
+        # "not converged" and not named)
+        if not (np.isfinite(more["f"]) and (more["f"] <= sol["f"] or more.get("success"))):
             break
         sol = more
     sol["iterations"], sol["wall_s"], sol["rounds"] = its, wall, trail

@@ -387,7 +387,8 @@ class _FakeProblem:
         if isinstance(step, Exception):
             raise step
         status, f = step
-        return dict(w=len(self.starts), f=f, status=status, iterations=20, wall_s=1.0)
+        return dict(w=len(self.starts), f=f, status=status, iterations=20, wall_s=1.0,
+                    success=status in ("Solve_Succeeded", "Stalled_Within_Tolerance"))
 
 
 MAX_IT = "Maximum_Iterations_Exceeded"
@@ -397,6 +398,9 @@ MAX_IT = "Maximum_Iterations_Exceeded"
     ([(MAX_IT, 500.0), (MAX_IT, 300.0), (MAX_IT, 290.0)], 3, MAX_IT),  # still gaining after two more
     ([(MAX_IT, 500.0), (MAX_IT, 499.6)], 2, "Stalled_Within_Tolerance"),  # a round that found nothing
     ([(MAX_IT, 500.0), ("Solve_Succeeded", 450.0)], 2, "Solve_Succeeded"),
+    # converged a little above where the round before stopped off continuity (measured:
+    # the load offset's refit on the two-effect set, 4263.99 -> 4265.52): kept
+    ([(MAX_IT, 500.0), ("Solve_Succeeded", 501.5)], 2, "Solve_Succeeded"),
     ([(MAX_IT, 999.5)], 1, "Stalled_Within_Tolerance"),  # never left the start
     ([("Solve_Succeeded", 10.0)], 1, "Solve_Succeeded"),
     # a round that ends worse, or raises, leaves the round before it standing
@@ -412,7 +416,7 @@ def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds, stat
     assert prob.starts[1:] == list(range(1, rounds))  # each round from where the last stopped
     done = [s for s in script[:rounds] if not isinstance(s, Exception)]
     assert sol["iterations"] == 20 * len(done)
-    assert sol["f"] == min(f for _, f in done)
+    assert sol["f"] == (done[-1][1] if status == "Solve_Succeeded" else min(f for _, f in done))
     assert sol["status"] == status
     assert len(sol["rounds"]) == len(done) and sol["rounds"][0] == (script[0][0], script[0][1])
 
