@@ -243,7 +243,7 @@ class DiagnosisResult:
                          f"{c['heldout_gap_before_um']:6.3f}->{c['heldout_gap_after_um']:<7.3f} "
                          f"{c.get('heldout_delta_nll', float('nan')):9.2f}  {c['note']}")
         if self.regime_screen:
-            L.append("[[Regime screen]] (no baseline: the preset, each candidate at its realistic magnitude)")
+            L.append("[[Regime screen]] (no baseline: the fit's start values, each candidate at its realistic magnitude)")
             L.append(f"    {'model':24s} {'runs parting':>13s} {'χ²':>9s}  note")
             for r in self.regime_screen:
                 rc = r.get("regime") or {}
@@ -339,6 +339,9 @@ def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float
     if rc.get("df"):
         detail += (f"; read as the data were, {len(rc['mismatched'])} of {rc['df']} part from it "
                    f"(χ² {rc['chi2']:.1f}, df {rc['df']})")
+        if not rc["mismatched"]:
+            detail += (": no mismatch once read like the data, so the runs are unusable for a fit "
+                       "rather than evidence against the model")
     where0 = [Misfit(feature="regime", misfit_sigma=misfit_sigma(p), p_value=p,
                      statistic=float(rc.get("chi2", n)), detail=detail)]
     nan = float("nan")
@@ -365,16 +368,19 @@ def _screen_note(current: dict, screen: list) -> str:
         return f"{r['mismatched']} of {rc['df']} runs, χ² {rc['chi2']:.1f}" if rc else f"? ({r['error']})"
 
     yes = [r for r in screen if r["reproduces_regime"]]
-    others = [r for r in screen if not r["reproduces_regime"] and r.get("regime")]
-    head = (f"regime screen (the coating's preset, each candidate at its realistic magnitude, the runs read as "
-            f"the data were): the current model parts from {runs(current)}; ")
+    failed = [r["effect"] for r in screen if r.get("error")]
+    others = [r for r in screen if not r["reproduces_regime"] and r.get("regime") and not r.get("error")]
+    head = (f"regime screen (the fit's start values, each candidate at its realistic magnitude, the runs read "
+            f"as the data were): the current model parts from {runs(current)}; ")
+    tail = f"; not simulated in every run: {', '.join(failed)}" if failed else ""
     if not yes:
-        return head + "no candidate reproduces the runs' regime"
-    left = (f"; every other candidate parts from {min(r['mismatched'] for r in others)}-"
-            f"{max(r['mismatched'] for r in others)} runs" if others else "")
+        return head + "no candidate reproduces the runs' regime" + tail
+    lo, hi = (min(r["mismatched"] for r in others), max(r["mismatched"] for r in others)) if others else (0, 0)
+    left = (f"; every other candidate parts from {lo}-{hi} runs" if others and lo != hi else
+            f"; every other candidate parts from {lo} runs" if others else "")
     return (head + ", ".join(r["effect"] for r in yes) + " reproduce" + ("s" if len(yes) == 1 else "")
-            + " it (no run parts)" + left + ". Not named: nothing was fitted (the preset's friction, the "
-            "library's magnitude), so this says which candidate to fit, not that it is the cause")
+            + " it (no run parts)" + left + tail + ". Not named: nothing was fitted (the start's friction, "
+            "the library's magnitude), so this says which candidate to fit, not that it is the cause")
 
 
 def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None = None,

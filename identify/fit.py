@@ -247,7 +247,8 @@ def _check_left_out(result, model, prob, say) -> None:
         rec = by_name.get(entry["name"])
         if entry["used"] or rec is None:
             continue
-        entry.update(model_regime=rec["model_regime"], model_slip_um=rec["model_slip_um"])
+        entry.update(model_regime=rec["model_regime"], model_slip_um=rec["model_slip_um"],
+                     model_steady_slip_um=rec.get("model_steady_slip_um"))
         if entry["name"] in bad:
             entry["reason"] += (
                 "; at the fitted values the model, sampled and read as the data were, stick-slips there "

@@ -80,7 +80,9 @@ class RegimeRun:
     noise_m: float  # σ̂
     # the frames on the model's clock (steps at n/fp): the data's times − step phase/fp
     frame_times_s: tuple = field(default=(), repr=False)
-    steady_slip_m: float = 0.0  # largest merged slip after the run's first (0 without one)
+    # largest merged slip after the run's first (0 without one; None: not recorded, and
+    # then not compared: 0 would call the model's later slips a mismatch against noise)
+    steady_slip_m: float | None = None
 
     @classmethod
     def of(cls, rd) -> "RegimeRun":
@@ -158,7 +160,9 @@ class RegimeCheck:
 def slips_text(r: dict) -> str:
     """The slips a run record's mismatch rests on: the largest, or the largest after the
     first where that is the larger excess (data that slip once and never again)."""
-    steady = (r.get("model_steady_slip_um") or 0.0) - (r.get("data_steady_slip_um") or 0.0)
+    if r.get("data_steady_slip_um") is None or r.get("model_steady_slip_um") is None:
+        return f"model slips {r['model_slip_um']:.2f} µm, data {r['data_slip_um']:.2f} µm"
+    steady = r["model_steady_slip_um"] - r["data_steady_slip_um"]
     if steady > (r.get("model_slip_um") or 0.0) - (r.get("data_slip_um") or 0.0):
         return (f"after the first slip, model slips {r['model_steady_slip_um']:.2f} µm, data "
                 f"{r['data_steady_slip_um']:.2f} µm")
@@ -179,7 +183,8 @@ def regime_check(model, values: dict, runs) -> RegimeCheck | None:
     out, chi2, df = [], 0.0, 0
     for rr in runs:
         rec = dict(name=rr.name, data_regime=rr.data_regime, data_slip_um=rr.largest_slip_m * 1e6,
-                   data_steady_slip_um=rr.steady_slip_m * 1e6, model_regime=None, model_slip_um=None,
+                   data_steady_slip_um=None if rr.steady_slip_m is None else rr.steady_slip_m * 1e6,
+                   model_regime=None, model_slip_um=None,
                    model_steady_slip_um=None, mismatch=False, z=None, error=None)
         try:
             # (recorded: the frames of a moving phase need its trajectory)
@@ -193,7 +198,8 @@ def regime_check(model, values: dict, runs) -> RegimeCheck | None:
             ev = extract_events(tr, noise_m=rr.noise_m)
             fitted_for_slips = _run_data(ev).kind == "events"
             slip, steady = largest_slip(ev), largest_slip(ev, after_first=True)
-            excess = max(slip - rr.largest_slip_m, steady - rr.steady_slip_m, 0.0)
+            excess = max(slip - rr.largest_slip_m, 0.0 if rr.steady_slip_m is None else steady - rr.steady_slip_m,
+                         0.0)
             z = excess / (math.sqrt(2.0) * rr.noise_m) if fitted_for_slips else 0.0
             rec.update(model_regime=str(ev.regime), model_slip_um=slip * 1e6, model_steady_slip_um=steady * 1e6,
                        mismatch=bool(fitted_for_slips and z > MISMATCH_Z), z=float(z))

@@ -31,22 +31,28 @@ def regime_screen(ids: Sequence[str], law: str, free: Sequence[str], values: dic
     """The current model and each applicable candidate at its realistic magnitude,
     checked against ``regime_runs`` (:class:`identify.regime_check.RegimeRun`).
 
-    Returns (the current model's record, the candidates' records, those that reproduce
-    the regime first, then by χ²). A record holds ``effect``, ``law``, ``values`` (the
-    parameters the candidate set), ``regime`` (the check's JSON), ``mismatched`` (how
-    many runs), ``reproduces_regime``, and ``error`` where it could not be simulated."""
+    ``values`` are those the runs' regime was judged at (the fit's start: the coating's
+    preset, or the start given). Returns two things: the current model's record, and the
+    candidates' records, those that reproduce the regime first, then by χ². A record
+    holds ``effect``, ``law``, ``values`` (the parameters the candidate set), ``regime``
+    (the check's JSON), ``mismatched`` (how many runs), ``reproduces_regime``, and
+    ``error`` where it could not be simulated."""
     from .laws import get_law
     from .model import Model
     from .regime_check import regime_check
 
     say = progress or (lambda m: None)
 
-    def check(effect, law_e, set_values):
-        rec = dict(effect=effect, law=law_e, values=dict(set_values), regime=None, mismatched=None,
+    def check(effect, law_e, on):
+        rec = dict(effect=effect, law=law_e, values={}, regime=None, mismatched=None,
                    reproduces_regime=False, error=None)
         try:
+            set_values = on()
+            rec["values"] = dict(set_values)
             model = Model(get_law(law_e))
-            rc = regime_check(model, model.defaults({**values, **set_values}), regime_runs)
+            merged = {**values, **set_values}
+            # (the camera's parameters, drift and exposure, are not the model's: kept beside it)
+            rc = regime_check(model, {**merged, **model.defaults(merged)}, regime_runs)
         except Exception as err:  # one candidate never sinks the screen
             rec["error"] = f"{type(err).__name__}: {err}"
             return rec
@@ -56,7 +62,7 @@ def regime_screen(ids: Sequence[str], law: str, free: Sequence[str], values: dic
             rec["error"] = "; ".join(rc.errors)
         return rec
 
-    current = check(None, law, {})
+    current = check(None, law, dict)
     out = []
     for eid in ids:
         eff = get_effect(eid)
@@ -64,7 +70,7 @@ def regime_screen(ids: Sequence[str], law: str, free: Sequence[str], values: dic
         if why:
             continue
         say(f"regime screen: {eid}")
-        out.append(check(eid, eff.law or law, eff.simulation_values(None, values)))
+        out.append(check(eid, eff.law or law, lambda eff=eff: eff.simulation_values(None, values)))
     out.sort(key=lambda r: (not r["reproduces_regime"], r["regime"] is None,
                             (r["regime"] or {}).get("chi2", float("inf"))))
     return current, out

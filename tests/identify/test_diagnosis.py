@@ -287,7 +287,9 @@ def test_runs_without_slips_where_the_model_stick_slips_are_unexplained(tmp_path
     assert "regime" in res.report()
     # each candidate screened against the runs' regime: the current model, then drift
     assert [r["effect"] for r in res.regime_screen] == [None, "drift"]
-    parting = res.regime_screen[0]["mismatched"]  # measured: 1 (the 20.3 N/m run: slips 0.56 µm against 0.42, z 1.2)
+    # measured: 1 (flat0: model slips 0.93 µm against the data's 0.39, z 4.3; the 20.3 N/m
+    # run's 0.56 against 0.42 are within the noise, z 1.2)
+    parting = res.regime_screen[0]["mismatched"]
     assert parting >= 1 and f"{parting} of 2 part from it" in res.where[0].detail
     assert "no candidate reproduces" in res.notes[1] and "[[Regime screen]]" in res.report()
     js = json.loads(res.save_json(tmp_path / "d.json").read_text())
@@ -401,6 +403,8 @@ MAX_IT = "Maximum_Iterations_Exceeded"
     # converged a little above where the round before stopped off continuity (measured:
     # the load offset's refit on the two-effect set, 4263.99 -> 4265.52): kept
     ([(MAX_IT, 500.0), ("Solve_Succeeded", 501.5)], 2, "Solve_Succeeded"),
+    # ... but not far above it (CONVERGED_SLACK, 3.3): the earlier point stands, not converged
+    ([(MAX_IT, 500.0), ("Solve_Succeeded", 510.0)], 2, MAX_IT),
     ([(MAX_IT, 999.5)], 1, "Stalled_Within_Tolerance"),  # never left the start
     ([("Solve_Succeeded", 10.0)], 1, "Solve_Succeeded"),
     # a round that ends worse, or raises, leaves the round before it standing
@@ -416,7 +420,7 @@ def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds, stat
     assert prob.starts[1:] == list(range(1, rounds))  # each round from where the last stopped
     done = [s for s in script[:rounds] if not isinstance(s, Exception)]
     assert sol["iterations"] == 20 * len(done)
-    assert sol["f"] == (done[-1][1] if status == "Solve_Succeeded" else min(f for _, f in done))
+    assert sol["f"] == (done[-1][1] if sol["status"] == "Solve_Succeeded" else min(f for _, f in done))
     assert sol["status"] == status
     assert len(sol["rounds"]) == len(done) and sol["rounds"][0] == (script[0][0], script[0][1])
 

@@ -282,8 +282,15 @@ def test_the_regime_screen_says_which_candidate_makes_runs_like_the_datas():
     assert screen[0]["law"] == "logistic" and screen[0]["regime"]["chi2"] == 0.0
     assert "velocity_strengthening" not in [r["effect"] for r in screen]  # A is free: not applicable
     assert all(not r["reproduces_regime"] for r in screen[1:])
-    assert next(r for r in screen if r["effect"] == "drift")["values"] == {"drift_rate": 5e-8}
+    drift = next(r for r in screen if r["effect"] == "drift")
+    assert drift["values"] == {"drift_rate": 5e-8}
+    # simulated with its drift (a camera parameter, kept beside the model's): another run than the current model's
+    assert drift["regime"]["runs"][0]["model_slip_um"] != current["regime"]["runs"][0]["model_slip_um"]
     json.dumps([current] + screen)
+    # a record made before the steady slip was kept: compared by its largest slip alone
+    old = dataclasses.replace(rr, steady_slip_m=None)
+    (r,) = regime_check(MODEL, TRUTH, [old]).runs
+    assert r["z"] < MISMATCH_Z and not r["mismatch"] and r["data_steady_slip_um"] is None
     bad = dataclasses.replace(rr, k=-1.0)
     _, screen = regime_screen(("aging_logistic",), "exponential", (), TRUTH, [bad])
     assert screen[0]["error"] and not screen[0]["reproduces_regime"]
