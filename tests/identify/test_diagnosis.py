@@ -1373,3 +1373,25 @@ def test_a_refit_that_ends_worse_than_the_current_model_tries_the_start_it_passe
         assert len(solved) == 2 and solved[0] < solved[1]  # the lower start first, then the one passed over
     else:
         assert len(solved) == 1
+
+
+def test_a_candidate_that_fit_better_at_its_magnitude_is_started_there_next_round(small_fit):
+    """The two-effect set: the step size's refit stayed near its null (1 ± 0.013) while
+    held at 1.05 it fit better; the next round retries it from 1.05 as well."""
+    from identify.diagnosis import _tasks
+
+    prob, w = small_fit.problem, small_fit.w
+    r = prob.residuals(w)
+    current = dict(values={**prob.values, **small_fit.values}, free=tuple(prob.theta.names), law=prob.law.name,
+                   w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta,
+                   chi2=float(r @ r) + prob.chi2_constant(), n_eff=prob.n_effective())
+    better = {"step_size": dict(parameter="step_scale", value=1.05, better=True)}
+    tasks, _ = _tasks(["step_size", "drift"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [],
+                      at_magnitude=better)
+    by = {t.effect: t for t in tasks if t.effect}
+    assert {"step_scale": 1.05} in [{k: v for k, v in s.items() if k == "step_scale" and v != 1.0}
+                                    for s in by["step_size"].starts]
+    assert by["step_size"].starts[0] == {"step_scale": 1.0}  # the null still first
+    assert all("step_scale" not in s for s in by["drift"].starts)
+    plain, _ = _tasks(["step_size"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [])
+    assert len(plain[1].starts) == len(by["step_size"].starts) - 1
