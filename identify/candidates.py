@@ -332,7 +332,7 @@ def run_candidate(task: CandidateTask) -> dict:
         if (task.magnitude and np.isfinite(chi2)
                 and not _could_be_named(task, chi2, prob.n_effective(), prob.n_observations())):
             try:
-                out["at_magnitude"] = _at_magnitude(task, prob, w, chi2, est)
+                out["at_magnitude"] = _at_magnitude(task, prob, w, chi2, est, evaluated=ev)
             except Exception as err:  # the refit's numbers stand; only this check is missing
                 out["at_magnitude"] = dict(parameter=task.magnitude[0], value=float(task.magnitude[1]),
                                            absorbed=None, error=f"{type(err).__name__}: {err}")
@@ -440,7 +440,7 @@ own, c_extra free at 0 ± 5.3e-5, they were 1.40×, just short; motion blur on m
 data: ≤ 1.01×.)"""
 
 
-def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: dict) -> dict:
+def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: dict, evaluated=None) -> dict:
     """Whether the data can tell a candidate at its realistic magnitude from its refit.
 
     The local tests (the refit's likelihood gain, its R² with the model's parameters at
@@ -526,7 +526,8 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
         # with the effect held at its magnitude, and, as the reference, held where the
         # refit has it (at its null: the current model's own standard errors)
         se_m = _held_stderrs(prob, sol["w"], i)
-        stated = _held_stderrs(prob, w, i) if se_m else {}
+        # (the refit's own evaluation at w: the solve since has moved the arcs' last point)
+        stated = _held_stderrs(prob, w, i, evaluated) if se_m else {}
     moved = []
     for n in names:
         se_refit = (est.get(n) or {}).get("stderr")
@@ -559,13 +560,14 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
                 iterations=int(sol["iterations"]), lower_bound=bool(sol["status"] == GAVE_UP and absorbed is False))
 
 
-def _held_stderrs(prob, w: np.ndarray, i: int) -> dict:
+def _held_stderrs(prob, w: np.ndarray, i: int, evaluated=None) -> dict:
     """Each parameter's robust standard error at w with parameter i held (known); {} when
-    the covariance fails as a whole (it then says nothing of any one parameter)."""
+    the covariance fails as a whole (it then says nothing of any one parameter).
+    ``evaluated``: the central-difference evaluation at w, when there is one."""
     from .report import _stderrs
 
     try:
-        C = prob.covariance(w, fixed_idx=[i], robust=True)
+        C = prob.covariance(w, fixed_idx=[i], robust=True, evaluated=evaluated)
     except Exception:
         return {}
     se = {n: x[0] for j, (n, x) in enumerate(zip(prob.theta.names, _stderrs(prob.theta, w[: prob.n_theta], C, 1.0)))
@@ -591,7 +593,7 @@ def _estimates(prob, w, ev) -> dict:
     tm = prob.theta
     th = w[: prob.n_theta]
     try:
-        C = prob.covariance(w, robust=True)
+        C = prob.covariance(w, robust=True, evaluated=ev)
     except Exception:
         C = np.full((prob.n_theta, prob.n_theta), np.nan)
     return {n: dict(value=float(v), stderr=se, ci95=list(ci) if ci is not None else None)

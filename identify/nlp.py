@@ -1571,7 +1571,8 @@ class Problem:
             M = M + sig2 * ((1.0 - rc) * (a.T @ a) + rc * np.outer(tot, tot))
         return M
 
-    def covariance(self, w: np.ndarray, fixed_idx: Iterable[int] = (), robust: bool | str = True) -> np.ndarray:
+    def covariance(self, w: np.ndarray, fixed_idx: Iterable[int] = (), robust: bool | str = True,
+                   evaluated=None) -> np.ndarray:
         """Covariance of the parameters and offsets at the solution w.
 
         Bread: the constrained Gauss–Newton system, the top-left block of
@@ -1594,13 +1595,16 @@ class Problem:
           with the c/(c − 1) small-sample factor): no assumption on the correlation, but
           only as many independent draws as runs.
 
-        NaN where the information is singular (undetermined).
+        NaN where the information is singular (undetermined). ``evaluated``: the
+        (r, g, Jr, Jg) of :meth:`evaluate` at w with :meth:`central_differences`, when
+        the caller has it (the arcs' Jacobian is most of the cost, and the arcs keep only
+        their last point).
         """
         mode = {True: "robust", False: "model"}.get(robust, robust)
         if mode not in ("robust", "cluster", "model"):
             raise ValueError(f"covariance {robust!r}: choose 'robust', 'cluster' or 'model'")
         self.central_differences()
-        r, g, Jr, Jg = self.evaluate(w, jac=True)
+        r, g, Jr, Jg = evaluated if evaluated is not None else self.evaluate(w, jac=True)
         H = (Jr.T @ Jr).tocsc()
         fixed_idx = set(fixed_idx)
         if not self.phases_free:

@@ -45,8 +45,12 @@ class _Problem:
 
     se_at_null, se_at_magnitude = 0.0035, 0.0035  # A's, with c_extra held at the refit's / the magnitude
 
-    def covariance(self, w, fixed_idx, robust):
+    evaluated_seen = None
+
+    def covariance(self, w, fixed_idx, robust, evaluated=None):
         assert list(fixed_idx) == [1]  # c_extra known, as the current model knows its null
+        if w[1] == 0:  # the reference, at the refit's point: its own evaluation is passed on
+            self.evaluated_seen = evaluated
         se = self.se_at_magnitude if w[1] > 0 else self.se_at_null
         return np.diag([float(_TM.to_scaled({"A": 0.0236 + se})[0] - _TM.to_scaled({"A": 0.0236})[0]) ** 2, 0.0])
 
@@ -58,7 +62,7 @@ def _check(chi2_at, shift=0.0, refit_chi2=1000.0, status="Solve_Succeeded", se_r
                          extra=("c_extra",), null_chi2=1001.0, magnitude=("c_extra", 2e-5))
     w = prob.theta.to_scaled({"A": 0.0236, "c_extra": 0.0})
     est = {"A": dict(value=0.0236, stderr=se_refit)}  # the refit's, c_extra free
-    out = _at_magnitude(task, prob, w, refit_chi2, est)
+    out = _at_magnitude(task, prob, w, refit_chi2, est, evaluated="the refit's evaluation")
     return out, prob
 
 
@@ -71,11 +75,12 @@ def test_the_magnitude_is_held_where_the_effect_says():
 
 
 def test_fits_as_well_there_absorbed_with_the_parameters_it_moves():
-    out, _ = _check(1000.0 + NEED - 0.1, shift=TO_0018)
+    out, prob = _check(1000.0 + NEED - 0.1, shift=TO_0018)
     assert out["absorbed"] is True and out["better"] is False
     assert out["delta_nll"] == pytest.approx((NEED - 0.1) / 2)
     (a,) = out["moved"]
     assert a["at_magnitude"] == pytest.approx(0.018) and a["z"] == pytest.approx((0.018 - 0.0236) / 0.0035, rel=1e-3)
+    assert prob.evaluated_seen == "the refit's evaluation"  # not evaluated again at the refit's point
     assert out["partners"] == ["A"] and out["stderr_checked"]
     out, _ = _check(1000.2, shift=0.0)
     assert out["absorbed"] and out["partners"] == []  # seen by nothing

@@ -1461,6 +1461,28 @@ def test_interval_triggers_are_bounds_not_residuals(small_traces):
     assert np.all(np.isfinite(np.diag(C)[: i.n_theta]))
 
 
+def test_covariance_from_a_given_evaluation_is_the_same(small_traces):
+    """Candidates pass the refit's own central-difference evaluation to the covariance
+    (the arcs cache only their last point): the same numbers as evaluating afresh, after
+    the arcs have been evaluated elsewhere, held parameter or not."""
+    runs, _, coating = prepare_runs(small_traces)
+    model = Model(get_law("exponential"))
+    values = dict(model.defaults(parameter_set(coating, {"v_stick": V_STICK})))
+    p = Problem([_run_data(ev) for ev in runs], model, values, FitOptions(fixed={"v_stick": V_STICK})).build()
+    w = p.initial_w({"mu_max": 0.75, "mu_min": 0.5, "tau": 0.08, "A": 0.012})
+    ev = p.central_differences().evaluate(w, jac=True)
+    other = p.initial_w({"mu_max": 0.7, "mu_min": 0.45, "tau": 0.05, "A": 0.01})
+    for fixed in ((), (0,)):
+        p.evaluate(other, jac=True)  # the arcs' last point is elsewhere now
+        fresh = p.covariance(w, fixed_idx=fixed)
+        p.evaluate(other, jac=True)
+        given = p.covariance(w, fixed_idx=fixed, evaluated=ev)
+        np.testing.assert_allclose(given, fresh, rtol=1e-9, equal_nan=True)
+    # and it is the given evaluation that counts
+    wrong = p.covariance(w, fixed_idx=(0,), evaluated=p.central_differences().evaluate(other, jac=True))
+    assert not np.allclose(wrong[: p.n_theta, : p.n_theta], fresh[: p.n_theta, : p.n_theta])
+
+
 # ----------------------------------------------------------------------------- CLI
 @pytest.fixture(scope="module")
 def small_data(small_traces, tmp_path_factory):
