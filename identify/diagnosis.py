@@ -46,6 +46,7 @@ from .fit import FitError, FitOptions, fit
 from .heldout import folds_of
 from .nlp import NOT_DIFFERENTIABLE
 from .where import where, with_regime
+from .regime_screen import parting, regime_screen
 
 __all__ = ["DiagnosisOptions", "DiagnosisResult", "diagnose", "make_executor"]
 
@@ -248,7 +249,7 @@ class DiagnosisResult:
             for r in self.regime_screen:
                 rc = r.get("regime") or {}
                 name = r["effect"] or "(current model)"
-                part = f"{r['mismatched']} of {rc['df']}" if rc else "-"
+                part = parting(r) or "-"
                 note = "reproduces the regime" if r["reproduces_regime"] else (r.get("error") or "")
                 L.append(f"    {name:24s} {part:>13s} {rc.get('chi2', float('nan')):9.1f}  {note}")
         for n in self.notes:
@@ -315,7 +316,7 @@ REGIME_MISMATCH = "no resolvable slips and the model predicts stick-slip"
 
 
 def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float,
-                     say: Callable[[str], None]) -> "DiagnosisResult":
+                     say: Callable[[str], None], executor: cf.Executor | None = None) -> "DiagnosisResult":
     """No run has a resolvable slip where the model, at the start parameters, stick-slips
     in every one (measured: logistic-law data, which never re-age after a slip): there is
     nothing to fit, and so no baseline to refine — a gap between the model and every run,
@@ -323,7 +324,6 @@ def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float
     the regime named as where the misfit lives, and each candidate screened at its
     realistic magnitude against the runs' regime (:mod:`identify.regime_screen`): which
     of them could make such runs, said, not named."""
-    from .regime_screen import regime_screen
     from .where import Misfit, misfit_sigma
 
     excluded = err.excluded
@@ -331,7 +331,14 @@ def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float
     current, screen = None, []
     if err.regime_runs:
         say(f"no baseline: screening the candidates on the {len(err.regime_runs)} run(s) left out for their regime")
-        current, screen = regime_screen(opts.effects, fopts.law, fopts.free, err.values, err.regime_runs, say)
+        # each candidate simulated in the diagnosis's workers, as its refits would be
+        own, closer = (executor, None) if executor is not None else make_executor(opts.workers, opts.dask)
+        try:
+            current, screen = regime_screen(opts.effects, fopts.law, fopts.free, err.values, err.regime_runs, say,
+                                            executor=own)
+        finally:
+            if closer is not None:
+                closer()
     rc = (current or {}).get("regime") or {}
     p = float(rc["p_value"]) if rc.get("df") else 0.0
     detail = (f"{n} of {n} runs show no resolvable slip, where the model at the coating's preset "
@@ -364,8 +371,8 @@ def _screen_note(current: dict, screen: list) -> str:
     """What the regime screen found, in a sentence: which candidates make runs like the
     data's, against the current model — a pointer, not a name."""
     def runs(r):
-        rc = r.get("regime") or {}
-        return f"{r['mismatched']} of {rc['df']} runs, χ² {rc['chi2']:.1f}" if rc else f"? ({r['error']})"
+        part = parting(r)
+        return f"{part} runs, χ² {r['regime']['chi2']:.1f}" if part else f"? ({r['error']})"
 
     yes = [r for r in screen if r["reproduces_regime"]]
     failed = [r["effect"] for r in screen if r.get("error")]
@@ -417,7 +424,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
         except FitError as err:
             if not err.excluded or not all(REGIME_MISMATCH in why for _, why in err.excluded):
                 raise
-            return _regime_mismatch(err, fopts, opts, t0, say)
+            return _regime_mismatch(err, fopts, opts, t0, say, executor)
     prob, w = baseline.problem, baseline.w
     fopts = prob.opts
     runs = prob.runs

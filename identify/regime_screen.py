@@ -19,15 +19,17 @@ mismatched 6 of 8 runs (χ² 1737), the logistic law none (χ² 0), every other 
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 from typing import Callable, Sequence
 
 from .effects import get_effect
 
-__all__ = ["regime_screen"]
+__all__ = ["parting", "regime_screen", "screen_one"]
 
 
 def regime_screen(ids: Sequence[str], law: str, free: Sequence[str], values: dict, regime_runs: Sequence,
-                  progress: Callable[[str], None] | None = None) -> tuple[dict, list]:
+                  progress: Callable[[str], None] | None = None, executor: cf.Executor | None = None
+                  ) -> tuple[dict, list]:
     """The current model and each applicable candidate at its realistic magnitude,
     checked against ``regime_runs`` (:class:`identify.regime_check.RegimeRun`).
 
@@ -36,41 +38,72 @@ def regime_screen(ids: Sequence[str], law: str, free: Sequence[str], values: dic
     candidates' records, those that reproduce the regime first, then by χ². A record
     holds ``effect``, ``law``, ``values`` (the parameters the candidate set), ``regime``
     (the check's JSON), ``mismatched`` (how many runs), ``reproduces_regime``, and
-    ``error`` where it could not be simulated."""
+    ``error`` where it could not be simulated. ``executor``: where the candidates are
+    simulated (the diagnosis's workers; each candidate is one task), else one after
+    another here."""
+    say = progress or (lambda m: None)
+    todo = [None] + [eid for eid in ids if not get_effect(eid).applicable(tuple(free), law)]
+    args = [(eid, law, dict(values), list(regime_runs)) for eid in todo]
+    recs = {}
+    if executor is None:
+        for k, (eid, a) in enumerate(zip(todo, args)):
+            if eid:
+                say(f"regime screen: {eid} ({k} of {len(todo) - 1})")
+            recs[eid] = screen_one(*a)
+    else:
+        futs = {}
+        for eid, a in zip(todo, args):
+            try:
+                futs[executor.submit(screen_one, *a)] = eid
+            except Exception as err:  # a broken pool: that candidate is not screened
+                recs[eid] = _record(eid, law, error=f"{type(err).__name__}: {err}")
+        for k, fut in enumerate(cf.as_completed(futs), 1):
+            eid = futs[fut]
+            try:
+                recs[eid] = fut.result()
+            except Exception as err:  # a lost worker: that candidate is not screened
+                recs[eid] = _record(eid, law, error=f"{type(err).__name__}: {err}")
+            say(f"regime screen: {k}/{len(futs)} done: {eid or 'current model'}")
+    out = [recs[eid] for eid in todo[1:]]
+    out.sort(key=lambda r: (not r["reproduces_regime"], r["regime"] is None,
+                            (r["regime"] or {}).get("chi2", float("inf"))))
+    return recs[None], out
+
+
+def parting(r: dict) -> str | None:
+    """'k of n' runs a screen record parts from, or None when it was not simulated."""
+    rc = r.get("regime") or {}
+    return f"{r['mismatched']} of {rc['df']}" if rc else None
+
+
+def _record(effect, law, error=None) -> dict:
+    return dict(effect=effect, law=law, values={}, regime=None, mismatched=None, reproduces_regime=False,
+                error=error)
+
+
+def screen_one(effect: str | None, law: str, values: dict, regime_runs: list) -> dict:
+    """One record of :func:`regime_screen`: the current model (``effect`` None) or one
+    candidate at its realistic magnitude, simulated over ``regime_runs`` (a picklable
+    task: numbers in, numbers out)."""
     from .laws import get_law
     from .model import Model
     from .regime_check import regime_check
 
-    say = progress or (lambda m: None)
-
-    def check(effect, law_e, on):
-        rec = dict(effect=effect, law=law_e, values={}, regime=None, mismatched=None,
-                   reproduces_regime=False, error=None)
-        try:
-            set_values = on()
-            rec["values"] = dict(set_values)
-            model = Model(get_law(law_e))
-            merged = {**values, **set_values}
-            # (the camera's parameters, drift and exposure, are not the model's: kept beside it)
-            rc = regime_check(model, {**merged, **model.defaults(merged)}, regime_runs)
-        except Exception as err:  # one candidate never sinks the screen
-            rec["error"] = f"{type(err).__name__}: {err}"
-            return rec
-        rec.update(regime=rc.to_json(), mismatched=len(rc.mismatched),
-                   reproduces_regime=bool(not rc.mismatched and not rc.errors and rc.df > 0))
-        if rc.errors:
-            rec["error"] = "; ".join(rc.errors)
+    eff = get_effect(effect) if effect else None
+    law_e = (eff.law or law) if eff else law
+    rec = _record(effect, law_e)
+    try:
+        set_values = eff.simulation_values(None, values) if eff else {}
+        rec["values"] = dict(set_values)
+        model = Model(get_law(law_e))
+        merged = {**values, **set_values}
+        # (the camera's parameters, drift and exposure, are not the model's: kept beside it)
+        rc = regime_check(model, {**merged, **model.defaults(merged)}, regime_runs)
+    except Exception as err:  # one candidate never sinks the screen
+        rec["error"] = f"{type(err).__name__}: {err}"
         return rec
-
-    current = check(None, law, dict)
-    out = []
-    for eid in ids:
-        eff = get_effect(eid)
-        why = eff.applicable(tuple(free), law)
-        if why:
-            continue
-        say(f"regime screen: {eid}")
-        out.append(check(eid, eff.law or law, lambda eff=eff: eff.simulation_values(None, values)))
-    out.sort(key=lambda r: (not r["reproduces_regime"], r["regime"] is None,
-                            (r["regime"] or {}).get("chi2", float("inf"))))
-    return current, out
+    rec.update(regime=rc.to_json(), mismatched=len(rc.mismatched),
+               reproduces_regime=bool(not rc.mismatched and not rc.errors and rc.df > 0))
+    if rc.errors:
+        rec["error"] = "; ".join(rc.errors)
+    return rec

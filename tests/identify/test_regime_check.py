@@ -294,3 +294,39 @@ def test_the_regime_screen_says_which_candidate_makes_runs_like_the_datas():
     bad = dataclasses.replace(rr, k=-1.0)
     _, screen = regime_screen(("aging_logistic",), "exponential", (), TRUTH, [bad])
     assert screen[0]["error"] and not screen[0]["reproduces_regime"]
+
+
+def test_the_regime_screen_runs_in_the_diagnosis_workers():
+    """Each candidate is one picklable task: the same records from worker processes as
+    here; a pool that breaks loses that candidate's record to an error, not the screen."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    from identify.regime_screen import regime_screen
+
+    tr = (identify.simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=10, step_frequency_Hz=100,
+                            travel_um=8, law="logistic", params=TRUTH, stick_speed_m_per_s=1e-5)
+          .sample(noise_nm=90, seed=3, name="once"))
+    rr = _left_out(tr)
+    ids = ("drift", "aging_logistic")
+    free = ("mu_max", "mu_min", "tau", "A")
+    here = regime_screen(ids, "exponential", free, TRUTH, [rr])
+    said = []
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    with cf.ProcessPoolExecutor(max_workers=2, mp_context=ctx) as ex:
+        there = regime_screen(ids, "exponential", free, TRUTH, [rr], said.append, executor=ex)
+    assert json.dumps(there) == json.dumps(here)
+    assert len(said) == 3 and said[-1].startswith("regime screen: 3/3 done")
+
+    class Broken(cf.Executor):
+        def submit(self, fn, *args, **kwargs):
+            if args[0] == "drift":
+                raise RuntimeError("pool broken")
+            f = cf.Future()
+            f.set_result(fn(*args, **kwargs))
+            return f
+
+    current, screen = regime_screen(ids, "exponential", free, TRUTH, [rr], executor=Broken())
+    assert current == here[0] and screen[0] == here[1][0]  # aging_logistic, simulated
+    drift = next(r for r in screen if r["effect"] == "drift")
+    assert drift["error"] == "RuntimeError: pool broken" and drift["regime"] is None
