@@ -351,6 +351,29 @@ def _kkt_solve(H, Jg, grad, g, free):
     return kkt.solve(K, np.r_[-grad[free], -g])
 
 
+def _bounded_step(H, Jg, grad, g, w, lbx, ubx, fixed_mask):
+    """The step of the linearised problem (Hessian ``H``) with the variables at a bound
+    the step pushes outwards held there: (d, multipliers, indices of the free
+    variables); d None when the KKT system is singular."""
+    at_lo, at_hi = w <= lbx + 1e-12, w >= ubx - 1e-12
+    hold = fixed_mask | (at_lo & (grad > 0)) | (at_hi & (grad < 0))
+    d, lam, free = None, None, np.nonzero(~hold)[0]
+    for _ in range(20):
+        free = np.nonzero(~hold)[0]
+        try:
+            sol = _kkt_solve(H, Jg, grad, g, free)
+        except RuntimeError:
+            return None, None, free
+        d = np.zeros(len(w))
+        d[free] = sol[: len(free)]
+        lam = sol[len(free):]
+        out = ((at_lo & (d < 0)) | (at_hi & (d > 0))) & ~hold
+        if not out.any():
+            break
+        hold |= out
+    return d, lam, free
+
+
 def _blockdiag_sparsity(rows: int, cols: int, E: int) -> ca.Sparsity:
     """E dense rows × cols blocks on the diagonal (column-major nonzeros = vec of the
     rows × cols·E matrix of the blocks side by side)."""
@@ -938,23 +961,7 @@ class Problem:
             if lm > 0:
                 diagH = np.maximum(H.diagonal()[:n_th], 1e-12)
                 H = H + sp.diags(np.r_[lm * diagH, np.zeros(self.n_w - n_th)])
-            at_lo, at_hi = w <= lbx + 1e-12, w >= ubx - 1e-12
-            hold = fixed_mask | (at_lo & (grad > 0)) | (at_hi & (grad < 0))
-            d = None
-            for _ in range(20):  # hold variables at a bound that the step pushes outwards
-                free = np.nonzero(~hold)[0]
-                try:
-                    sol = _kkt_solve(H, Jg, grad, g, free)
-                except RuntimeError:
-                    d = None
-                    break
-                d = np.zeros(self.n_w)
-                d[free] = sol[: len(free)]
-                lam = sol[len(free):]
-                out = ((at_lo & (d < 0)) | (at_hi & (d > 0))) & ~hold
-                if not out.any():
-                    break
-                hold |= out
+            d, lam, free = _bounded_step(H, Jg, grad, g, w, lbx, ubx, fixed_mask)
             if d is None or not np.all(np.isfinite(d)):
                 lm = max(10 * lm, 1e-3)
                 if lm > 1e8:
@@ -1255,6 +1262,24 @@ class Problem:
             return failed, False
         status, success = self._stalled(it, r, Jr, d0, g, damped=False)
         return (status, True) if success else (failed, False)
+
+    def solution_gap(self, w: np.ndarray) -> dict:
+        """How far a point a solve stopped at lies from the solution its linearisation
+        predicts, for the report of a solve that did not converge: ``half_chi2``, the ½χ²
+        between here and the Gauss–Newton model's feasible stationary point (on central
+        arc differences, as the covariance; the parameters then within about
+        √(2·half_chi2) standard errors of it in any direction), and ``continuity_um``,
+        the largest continuity violation here. ``half_chi2`` NaN where that model has no
+        solution (a singular KKT system)."""
+        self.central_differences()
+        r, g, Jr, Jg = self.evaluate(w, jac=True)
+        lbx, ubx = self.bounds()
+        d, _, _ = _bounded_step((Jr.T @ Jr).tocsc(), Jg, Jr.T @ r, g, np.asarray(w, float), lbx, ubx, lbx == ubx)
+        feas = float(np.abs(g).max()) if g.size else 0.0
+        if d is None or not np.all(np.isfinite(d)):
+            return dict(half_chi2=float("nan"), continuity_um=feas)
+        dr = Jr @ d
+        return dict(half_chi2=abs(float(r @ dr + 0.5 * dr @ dr)), continuity_um=feas)
 
     def _stalled(self, it, r, Jr, d, g, damped: bool) -> tuple[str, bool]:
         """Status of a solve whose accepted steps no longer gain: the functions do not

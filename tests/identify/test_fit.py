@@ -1638,6 +1638,47 @@ def test_an_unconverged_fit_flags_its_parameters(small_traces):
         flag = res[name].flag or ""
         assert "not converged" in flag or "bound" in flag or "undetermined" in flag, (name, flag)
     assert "not converged" in res.report()
+    # and how far it stopped from the solution its linearisation predicts: one iteration
+    # from 20 % off is far (more than half a standard error), so the interval is not trusted
+    gap = res.solver["solution_gap"]
+    assert gap["half_chi2"] > 0.125 and not gap["near"] and gap["within_se"] == pytest.approx(
+        np.sqrt(2 * gap["half_chi2"]))
+    assert "not to be trusted" in res["mu_max"].flag and "Gauss–Newton step predicts" in res["mu_max"].flag
+    assert "    stopped            = ½χ²" in res.report()
+    json.dumps(res.to_json())
+
+
+def test_a_converged_fit_is_at_the_solution_its_linearisation_predicts(small_fit):
+    """The measure an unconverged solve is reported with, at a converged one: ½χ² within
+    the solver's stall tolerance of the Gauss–Newton solution, continuity to its own."""
+    gap = small_fit.problem.solution_gap(small_fit.w)
+    assert gap["half_chi2"] < 0.01 and gap["continuity_um"] < 1e-4
+    assert small_fit.solver["success"] and small_fit.solver["solution_gap"] is None
+    assert "stopped            =" not in small_fit.report()
+
+
+def test_an_unconverged_solve_near_its_solution_says_how_near():
+    """Within half a standard error (and a nanometre of continuity) the flag gives the
+    distance instead of distrust; beyond either, distrust with the numbers."""
+    from identify.report import _solution_gap, _unconverged_flag
+
+    class Stub:  # a problem whose Gauss–Newton model says what the test sets
+        def __init__(self, h, c):
+            self.h, self.c = h, c
+
+        def solution_gap(self, w):
+            return dict(half_chi2=self.h, continuity_um=self.c)
+
+    assert _solution_gap(Stub(0.0207, 3e-6), None)["near"]  # 0.2 standard errors
+    assert not _solution_gap(Stub(0.2, 3e-6), None)["near"]  # 0.63
+    assert not _solution_gap(Stub(0.0207, 2e-3), None)["near"]  # 2 nm off continuity
+    assert not _solution_gap(Stub(float("nan"), 0.0), None)["near"]
+    near = dict(half_chi2=0.0207, within_se=np.sqrt(2 * 0.0207), continuity_um=3e-6, near=True)
+    flag = _unconverged_flag("Line_Search_Failed", near)
+    assert "within ~0.2 standard errors" in flag and "not to be trusted" not in flag
+    far = dict(near, continuity_um=5e-3, near=False)
+    assert "not to be trusted" in _unconverged_flag("Line_Search_Failed", far)
+    assert _unconverged_flag("Stalled", None).endswith("its interval not to be trusted")
 
 
 def test_parameter_at_bound_is_flagged(small_traces):
