@@ -500,6 +500,7 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
     w0 = np.array(w, float)
     w0[i] = target
     give_up0, far0, opts0 = prob.give_up, getattr(prob, "give_up_far", None), prob.opts
+    horizons = np.array(prob.ev_M, copy=True)
     try:
         # (the arcs may be resized: the refit's record has taken its own horizons already)
         if prob.E:
@@ -526,8 +527,11 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
         # with the effect held at its magnitude, and, as the reference, held where the
         # refit has it (at its null: the current model's own standard errors)
         se_m = _held_stderrs(prob, sol["w"], i)
-        # (the refit's own evaluation at w: the solve since has moved the arcs' last point)
-        stated = _held_stderrs(prob, w, i, evaluated) if se_m else {}
+        # (the refit's own evaluation at w, the solve since having moved the arcs' last
+        # point; not when settling the arcs resized them: the reference and se_m must
+        # come from one problem)
+        same = evaluated is not None and np.array_equal(horizons, prob.ev_M)
+        stated = _held_stderrs(prob, w, i, evaluated if same else None) if se_m else {}
     moved = []
     for n in names:
         se_refit = (est.get(n) or {}).get("stderr")

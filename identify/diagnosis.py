@@ -45,8 +45,8 @@ from .events import _jsonable  # NaN/inf -> null, numpy -> Python
 from .fit import FitError, FitOptions, fit
 from .heldout import folds_of
 from .nlp import NOT_DIFFERENTIABLE
-from .where import where, with_regime
 from .regime_screen import parting, regime_screen
+from .where import where, with_regime
 
 __all__ = ["DiagnosisOptions", "DiagnosisResult", "diagnose", "make_executor"]
 
@@ -323,7 +323,8 @@ def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float
     which no candidate can be scored on by a refit. The verdict is ``unexplained``, with
     the regime named as where the misfit lives, and each candidate screened at its
     realistic magnitude against the runs' regime (:mod:`identify.regime_screen`): which
-    of them could make such runs, said, not named."""
+    of them could make such runs, said, not named. The screen runs on ``executor`` (or
+    on one made from ``opts``, closed again here)."""
     from .where import Misfit, misfit_sigma
 
     excluded = err.excluded

@@ -1621,15 +1621,22 @@ class Problem:
           only as many independent draws as runs.
 
         NaN where the information is singular (undetermined). ``evaluated``: the
-        (r, g, Jr, Jg) of :meth:`evaluate` at w with :meth:`central_differences`, when
-        the caller has it (the arcs' Jacobian is most of the cost, and the arcs keep only
-        their last point).
+        (r, g, Jr, Jg) of :meth:`evaluate` at w with :meth:`central_differences`, on this
+        problem as built now (the same arc horizons ``ev_M``), when the caller has it (the
+        arcs' Jacobian is most of the cost, and the arcs keep only their last point).
         """
         mode = {True: "robust", False: "model"}.get(robust, robust)
         if mode not in ("robust", "cluster", "model"):
             raise ValueError(f"covariance {robust!r}: choose 'robust', 'cluster' or 'model'")
-        self.central_differences()
-        r, g, Jr, Jg = evaluated if evaluated is not None else self.evaluate(w, jac=True)
+        if evaluated is None:
+            self.central_differences()
+            r, g, Jr, Jg = self.evaluate(w, jac=True)
+        else:
+            r, g, Jr, Jg = evaluated
+            if r.size != self.n_r or Jr.shape != (self.n_r, self.n_w) or Jg.shape != (self.n_g, self.n_w):
+                raise ValueError(f"covariance: the evaluation given has {r.size} residuals and Jacobians "
+                                 f"{Jr.shape}, {Jg.shape}; this problem has {self.n_r} residuals, "
+                                 f"{self.n_g} constraints, {self.n_w} variables")
         H = (Jr.T @ Jr).tocsc()
         fixed_idx = set(fixed_idx)
         if not self.phases_free:

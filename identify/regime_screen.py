@@ -42,28 +42,33 @@ def regime_screen(ids: Sequence[str], law: str, free: Sequence[str], values: dic
     simulated (the diagnosis's workers; each candidate is one task), else one after
     another here."""
     say = progress or (lambda m: None)
-    todo = [None] + [eid for eid in ids if not get_effect(eid).applicable(tuple(free), law)]
+    todo = [None] + list(dict.fromkeys(eid for eid in ids if not get_effect(eid).applicable(tuple(free), law)))
+    law_of = {eid: (get_effect(eid).law or law) if eid else law for eid in todo}
     args = [(eid, law, dict(values), list(regime_runs)) for eid in todo]
     recs = {}
+
+    def failed(eid, err):
+        return _record(eid, law_of[eid], error=f"{type(err).__name__}: {err}")
+
+    say(f"regime screen: the current model and {len(todo) - 1} candidate(s) on {len(regime_runs)} run(s)")
     if executor is None:
-        for k, (eid, a) in enumerate(zip(todo, args)):
-            if eid:
-                say(f"regime screen: {eid} ({k} of {len(todo) - 1})")
+        for k, (eid, a) in enumerate(zip(todo, args), 1):
             recs[eid] = screen_one(*a)
+            say(f"regime screen: {k}/{len(todo)} done: {eid or 'current model'}")
     else:
         futs = {}
         for eid, a in zip(todo, args):
             try:
                 futs[executor.submit(screen_one, *a)] = eid
             except Exception as err:  # a broken pool: that candidate is not screened
-                recs[eid] = _record(eid, law, error=f"{type(err).__name__}: {err}")
-        for k, fut in enumerate(cf.as_completed(futs), 1):
+                recs[eid] = failed(eid, err)
+        for fut in cf.as_completed(futs):
             eid = futs[fut]
             try:
                 recs[eid] = fut.result()
             except Exception as err:  # a lost worker: that candidate is not screened
-                recs[eid] = _record(eid, law, error=f"{type(err).__name__}: {err}")
-            say(f"regime screen: {k}/{len(futs)} done: {eid or 'current model'}")
+                recs[eid] = failed(eid, err)
+            say(f"regime screen: {len(recs)}/{len(todo)} done: {eid or 'current model'}")
     out = [recs[eid] for eid in todo[1:]]
     out.sort(key=lambda r: (not r["reproduces_regime"], r["regime"] is None,
                             (r["regime"] or {}).get("chi2", float("inf"))))

@@ -25,6 +25,13 @@ class _Problem:
     """χ² at the magnitude = ``chi2_at``; the solve moves A by ``shift`` (scaled units)."""
 
     E = 0
+    ev_M = np.zeros(0, int)
+    resize = False  # settling the arcs at the magnitude resizes them (E = 1 then)
+
+    def settle_arcs(self, w):
+        if self.resize:
+            self.ev_M = self.ev_M + 1
+        return w
 
     def __init__(self, chi2_at: float, shift: float = 0.0, status: str = "Solve_Succeeded"):
         self.theta = ThetaMap.build(("A", "c_extra"), {})
@@ -51,6 +58,8 @@ class _Problem:
         assert list(fixed_idx) == [1]  # c_extra known, as the current model knows its null
         if w[1] == 0:  # the reference, at the refit's point: its own evaluation is passed on
             self.evaluated_seen = evaluated
+        else:  # at the magnitude: evaluated there, never the refit's evaluation
+            assert evaluated is None
         se = self.se_at_magnitude if w[1] > 0 else self.se_at_null
         return np.diag([float(_TM.to_scaled({"A": 0.0236 + se})[0] - _TM.to_scaled({"A": 0.0236})[0]) ** 2, 0.0])
 
@@ -166,3 +175,17 @@ def test_far_from_continuity_it_stops_only_when_decisive(spare, stops):
     else:
         assert out["absorbed"] is None
     assert prob.give_up_far is None  # (the problem's own again)
+
+
+def test_the_refits_evaluation_is_not_reused_once_the_arcs_were_resized():
+    """Settling the arcs at the magnitude may lengthen their horizons (a rebuilt
+    problem): then the reference covariance at the refit's point is evaluated afresh, on
+    the same problem as the one at the magnitude."""
+    prob = _Problem(1000.0 + NEED - 0.1, TO_0018)
+    prob.E, prob.ev_M, prob.resize = 1, np.array([8]), True
+    task = CandidateTask(effect="damping", runs=[], law="exponential", values={}, free=("A",),
+                         extra=("c_extra",), null_chi2=1001.0, magnitude=("c_extra", 2e-5))
+    w = prob.theta.to_scaled({"A": 0.0236, "c_extra": 0.0})
+    out = _at_magnitude(task, prob, w, 1000.0, {"A": dict(value=0.0236, stderr=0.0035)},
+                        evaluated="the refit's evaluation")
+    assert out["absorbed"] and out["stderr_checked"] and prob.evaluated_seen is None

@@ -1479,8 +1479,14 @@ def test_covariance_from_a_given_evaluation_is_the_same(small_traces):
         given = p.covariance(w, fixed_idx=fixed, evaluated=ev)
         np.testing.assert_allclose(given, fresh, rtol=1e-9, equal_nan=True)
     # and it is the given evaluation that counts
+    # (row and column 0 are NaN: parameter 0 is held; the rest must be finite and differ)
     wrong = p.covariance(w, fixed_idx=(0,), evaluated=p.central_differences().evaluate(other, jac=True))
-    assert not np.allclose(wrong[: p.n_theta, : p.n_theta], fresh[: p.n_theta, : p.n_theta])
+    a, b = wrong[1: p.n_theta, 1: p.n_theta], fresh[1: p.n_theta, 1: p.n_theta]
+    assert np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and not np.allclose(a, b)
+    # an evaluation of another problem is refused, not misread
+    r, g, Jr, Jg = ev
+    with pytest.raises(ValueError, match="this problem has"):
+        p.covariance(w, evaluated=(r[:-1], g, Jr[:-1], Jg))
 
 
 # ----------------------------------------------------------------------------- CLI

@@ -316,17 +316,26 @@ def test_the_regime_screen_runs_in_the_diagnosis_workers():
     with cf.ProcessPoolExecutor(max_workers=2, mp_context=ctx) as ex:
         there = regime_screen(ids, "exponential", free, TRUTH, [rr], said.append, executor=ex)
     assert json.dumps(there) == json.dumps(here)
-    assert len(said) == 3 and said[-1].startswith("regime screen: 3/3 done")
+    assert len(said) == 4 and said[0].startswith("regime screen: the current model and 2 candidate(s)")
+    assert said[-1].startswith("regime screen: 3/3 done")
 
     class Broken(cf.Executor):
+        """drift cannot be submitted; the logistic law's worker is lost on the way."""
+
         def submit(self, fn, *args, **kwargs):
             if args[0] == "drift":
                 raise RuntimeError("pool broken")
             f = cf.Future()
-            f.set_result(fn(*args, **kwargs))
+            if args[0] == "aging_logistic":
+                f.set_exception(cf.process.BrokenProcessPool("worker lost"))
+            else:
+                f.set_result(fn(*args, **kwargs))
             return f
 
     current, screen = regime_screen(ids, "exponential", free, TRUTH, [rr], executor=Broken())
-    assert current == here[0] and screen[0] == here[1][0]  # aging_logistic, simulated
+    assert current == here[0]  # the current model, simulated
     drift = next(r for r in screen if r["effect"] == "drift")
     assert drift["error"] == "RuntimeError: pool broken" and drift["regime"] is None
+    logistic = next(r for r in screen if r["effect"] == "aging_logistic")
+    assert logistic["error"] == "BrokenProcessPool: worker lost" and not logistic["reproduces_regime"]
+    assert logistic["law"] == "logistic"  # recorded under its own law, not the current model's
