@@ -294,10 +294,13 @@ def _gap_text(gap: dict) -> str:
 def _unconverged_flag(status, gap: dict | None) -> str:
     """The flag of a parameter whose solve did not converge: how near it stopped, when
     that is known and near (:data:`NEAR_SOLUTION_SE`), else a warning not to trust it."""
-    head = f"not converged ({status}): the value is where the solver stopped"
+    # (the numbers behind it are on the report's 'stopped' line)
     if gap is not None and gap["near"]:
-        return f"{head}, {_gap_text(gap)}"
-    return f"{head}, its interval not to be trusted" + (f" ({_gap_text(gap)})" if gap is not None else "")
+        return (f"not converged ({status}): within ~{gap['within_se']:.2g} standard errors of the solution its "
+                "Gauss–Newton step predicts")
+    far = (f" (~{gap['within_se']:.2g} standard errors from the solution its Gauss–Newton step predicts)"
+           if gap is not None and np.isfinite(gap["within_se"]) else "")
+    return f"not converged ({status}): the value is where the solver stopped, its interval not to be trusted" + far
 
 
 def build_result(prob, best: dict, results: list, excluded: list, start: Mapping, start_source: str,

@@ -1650,6 +1650,7 @@ def test_an_unconverged_fit_flags_its_parameters(small_traces):
     assert gap["half_chi2"] > 0.125 and not gap["near"] and gap["within_se"] == pytest.approx(
         np.sqrt(2 * gap["half_chi2"]))
     assert "not to be trusted" in res["mu_max"].flag and "Gauss–Newton step predicts" in res["mu_max"].flag
+    assert f"~{gap['within_se']:.2g} standard errors" in res["mu_max"].flag
     assert "    stopped            = ½χ²" in res.report()
     json.dumps(res.to_json())
 
