@@ -67,12 +67,15 @@ def _eliminated(K: sp.csc_matrix, b: np.ndarray, dense: np.ndarray) -> np.ndarra
     try:
         X = spla.splu(S).solve(np.column_stack([B[rest], U]))
         xs, Y = X[:, :k], X[:, k:]
-        xd = np.linalg.solve(D - V @ Y, B[dense] - V @ xs)
+        # (a singular sparse part gives inf/NaN here: judged below, not warned of)
+        with np.errstate(invalid="ignore", over="ignore"):
+            xd = np.linalg.solve(D - V @ Y, B[dense] - V @ xs)
     except (RuntimeError, np.linalg.LinAlgError):
         return None
     x = np.empty((n, k))
     x[dense] = xd
-    x[rest] = xs - Y @ xd
+    with np.errstate(invalid="ignore", over="ignore"):
+        x[rest] = xs - Y @ xd
     if not np.all(np.isfinite(x)):
         return None
     with np.errstate(over="ignore", invalid="ignore"):  # (a near-singular system: the whole matrix decides)
