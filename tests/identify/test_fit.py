@@ -1664,6 +1664,15 @@ def test_a_converged_fit_is_at_the_solution_its_linearisation_predicts(small_fit
     assert "stopped            =" not in small_fit.report()
 
 
+def test_multistart_counts_a_start_within_the_solvers_resolution_as_finding_the_best():
+    """Two starts at one solution differ by what the solver cannot resolve (0.02 of ½χ² on
+    an 8-run fit): both found it. Another basin 1 unit higher did not; nor did a failed start."""
+    from identify.report import best_found
+
+    assert best_found([5363.46, 5363.48, 5364.5, float("inf")]) == 2
+    assert best_found([12.0]) == 1 and best_found([float("nan")]) == 0
+
+
 def test_an_unconverged_solve_near_its_solution_says_how_near():
     """Within half a standard error (and a nanometre of continuity) the flag gives the
     distance instead of distrust; beyond either, distrust with the numbers."""
