@@ -25,7 +25,7 @@ from .missed import missed_slips
 from .nlp import Problem
 from .params import parameter_set, spec
 from .rundata import RunData, _run_data
-from .sequence import _ambiguous_triggers, _batch_triggers, _misfit_triggers, _with_triggers
+from .sequence import _ambiguous_triggers, _batch_triggers, _excess, _misfit_triggers, _with_triggers
 
 __all__ = ["FitOptions", "fit", "FitError", "RunData", "prepare_runs", "decide_sequence"]
 
@@ -407,6 +407,7 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
     # with the moves, when they do not touch the plateaus it splits: _with_insertions)
     refined = inserted = 0
     restarts: list[dict] = []  # the solves after inserted slips (_after_insertion)
+    prob0, best0 = prob, best
     for round_ in range(6):
         changes, n_moved = prob.refine_triggers(best["w"])
         n_added = 0
@@ -438,11 +439,48 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
     if best.get("loose"):  # no pass re-solved it: the sequence is settled, solved fully now
         say("the mode sequence settled: solving to the full tolerance")
         best = _full_tolerance(prob, best)
-    best["triggers_moved"] = refined + n_batch + n_alt + n_seq["moved"]
-    best["slips_inserted"] = inserted + n_seq["inserted"]
-    best["slips_removed"] = n_seq["removed"]
+    moved, ins, rem = refined + n_batch + n_alt + n_seq["moved"], inserted + n_seq["inserted"], n_seq["removed"]
+    worse = _worse_sequence(prob0, best0, prob, best)
+    if worse is not None:
+        say(f"the mode sequence as detected kept: the changes ({moved} trigger(s) moved, {ins} slip(s) inserted, "
+            f"{rem} removed) ended with excess χ² {worse['excess_after']:.6g} against {worse['excess_before']:.6g}")
+        spent = dict(iterations=best["iterations"], wall_s=best["wall_s"])  # (cumulative: every round's solves)
+        prob, best = prob0, (_full_tolerance(prob0, best0) if best0.get("loose") else dict(best0))
+        if best0.get("loose"):
+            spent = {k: spent[k] + best[k] - best0[k] for k in spent}
+        best.update(spent)
+        best["sequence_not_kept"] = dict(worse, triggers_moved=moved, slips_inserted=ins, slips_removed=rem)
+        moved = ins = rem = 0
+        restarts = []
+    best["triggers_moved"], best["slips_inserted"], best["slips_removed"] = moved, ins, rem
     best["restarts"] = restarts
     return prob, best
+
+
+SEQUENCE_SLACK = 2.0
+"""The mode-sequence changes a fit decides (:func:`decide_sequence`) are each meant to
+lower χ²; all of them together ending with an excess χ² (χ² − observations, comparable
+across sequences) more than this above the solution they started from are undone, that
+solution kept. Why: on data the model cannot follow, each round's trigger moves chase
+the misfit. Measured (rejuvenation withheld at dc = 0.3 µm, the exponential baseline, 7
+runs): the first solve ended at χ² 21 208, continuous to 1e-7 µm; 57 trigger moves and 5
+insertions later the fit ended `Line_Search_Failed` at χ² 56 498, 0.15 µm off
+continuity, ½χ² 3e5 from its Gauss–Newton solution (887 iterations, 557 s)."""
+
+
+def _worse_sequence(prob0, best0, prob, best) -> dict | None:
+    """The excess χ² before and after when the decided sequence's solution is worse than
+    the one it started from (:data:`SEQUENCE_SLACK`), or not finite; else None."""
+    try:
+        e0 = _excess(prob0, prob0.residuals(best0["w"]))
+        e1 = _excess(prob, prob.residuals(best["w"]))
+    except Exception:  # (either cannot be evaluated: no comparison, the sequence stands)
+        return None
+    if not np.isfinite(e0):
+        return None
+    if np.isfinite(e1) and e1 <= e0 + SEQUENCE_SLACK:
+        return None
+    return dict(excess_before=float(e0), excess_after=float(e1))
 
 
 def _full_tolerance(prob, best: dict) -> dict:

@@ -147,6 +147,10 @@ class FitResult:
             f"{s.get('slips_inserted', 0)} missed slip(s) inserted, "
             f"{s.get('slips_removed', 0)} spurious slip(s) removed by the fit",
             *([f"    stopped            = {_gap_text(s['solution_gap'])}"] if s.get("solution_gap") else []),
+            *([f"    not kept           = the mode sequence the fit decided ({x['triggers_moved']} trigger(s) "
+               f"moved, {x['slips_inserted']} inserted, {x['slips_removed']} removed): it ended at excess χ² "
+               f"{x['excess_after']:.6g} against {x['excess_before']:.6g} on the sequence as detected"]
+              if (x := s.get("sequence_not_kept")) else []),
             *([f"    arcs not finished  = {s['arcs_failed']} at trial points the solver rejected "
                f"(last: {s.get('arc_failure', '?')})"] if s.get("arcs_failed") else []),
             *[f"    after insertion    = {x['slips_inserted']} slip(s): solved afresh, ½χ² {x['fresh_half_chi2']:.6g}"
@@ -404,6 +408,7 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
                     slips_inserted=int(best.get("slips_inserted", 0)),
                     slips_removed=int(best.get("slips_removed", 0)),
                     restarts=list(best.get("restarts", [])), solution_gap=gap,
+                    sequence_not_kept=best.get("sequence_not_kept"),
                     method=("Gauss-Newton SQP (Gauss-Newton Hessian, l1-merit line search)"
                             if prob.opts.solver == "gauss-newton" else "Ipopt (Gauss-Newton Hessian)"),
                     trigger=prob.opts.trigger),

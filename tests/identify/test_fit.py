@@ -1673,6 +1673,61 @@ def test_multistart_counts_a_start_within_the_solvers_resolution_as_finding_the_
     assert best_found([12.0]) == 1 and best_found([float("nan")]) == 0
 
 
+def test_a_mode_sequence_that_ends_worse_is_not_kept(small_traces, monkeypatch):
+    """The sequence the fit decides must not end worse than the solution it started from
+    (fit.SEQUENCE_SLACK): when its last pass hands back a worse point (here, made so: the
+    parameters 10 % off), the fit keeps the sequence as detected and its solution, and
+    says what was not kept."""
+    import sys
+
+    F = sys.modules["identify.fit"]  # (the package's attribute `fit` is the function)
+    real = F._misfit_triggers
+
+    def worse(prob, best, *a, **k):
+        prob, best, counts = real(prob, best, *a, **k)
+        w = np.array(best["w"], float)
+        w[: prob.n_theta] *= 1.1
+        return prob, dict(best, w=w, success=False, status="Line_Search_Failed", loose=False), dict(
+            counts, moved=counts["moved"] + 7)
+
+    monkeypatch.setattr(F, "_misfit_triggers", worse)
+    res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}))
+    x = res.solver["sequence_not_kept"]
+    assert x["excess_after"] > x["excess_before"] + F.SEQUENCE_SLACK and x["triggers_moved"] >= 7
+    assert res.solver["success"] and res.solver["triggers_moved"] == 0 and res.solver["slips_inserted"] == 0
+    assert res.redchi < 1.2  # the solution before the sequence pass (the truth's data: ~1)
+    assert "not kept           = the mode sequence the fit decided" in res.report()
+    json.dumps(res.to_json())
+
+
+def test_worse_sequence_compares_excess_chi2():
+    """Excess χ² (χ² − observations) decides, with SEQUENCE_SLACK to spare; a solution
+    that cannot be evaluated after is worse, one that cannot before decides nothing."""
+    from identify.fit import SEQUENCE_SLACK, _worse_sequence
+
+    class P:
+        def __init__(self, n_obs):
+            self.n = n_obs
+
+        def residuals(self, w):
+            return np.asarray(w, float)
+
+        def chi2_constant(self):
+            return 0.0
+
+        def n_observations(self):
+            return self.n
+
+    a, b = P(100), P(98)  # the decided sequence leaves two frames out as moving
+    w0 = {"w": np.full(100, 1.0)}  # χ² 100: excess 0
+    assert _worse_sequence(a, w0, b, {"w": np.full(98, 1.0)}) is None  # excess 0 both
+    assert _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), np.sqrt(1 + SEQUENCE_SLACK)]}) is None
+    x = _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), 2.0]})  # excess 3 > 2
+    assert x == {"excess_before": 0.0, "excess_after": 3.0}
+    assert _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), np.nan]}) is not None
+    assert _worse_sequence(a, {"w": np.full(100, np.inf)}, b, {"w": np.full(98, 5.0)}) is None
+
+
 def test_an_unconverged_solve_near_its_solution_says_how_near():
     """Within half a standard error (and a nanometre of continuity) the flag gives the
     distance instead of distrust; beyond either, distrust with the numbers."""
