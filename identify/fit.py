@@ -399,7 +399,9 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
     (:func:`_after_insertion`). ``fresh_start`` (parameter values): after inserting slips,
     solve afresh from the staged start of those values (:func:`fit` passes its start).
     The diagnosis calls it again for a model with a named effect, whose sequence the
-    baseline had bent to absorb the effect."""
+    baseline had bent to absorb the effect. Should the decided sequence end worse than
+    ``best`` (:data:`SEQUENCE_SLACK`), ``prob`` and ``best`` are returned instead, with
+    what was not kept in ``sequence_not_kept``."""
     # the mode sequence: move triggers the model places a step or two off, and leave
     # out the frames taken while the block moved; re-solve until nothing moves
     # (a slip the detection missed is inserted where the model predicts it and the
