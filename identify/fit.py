@@ -470,19 +470,31 @@ insertions later the fit ended `Line_Search_Failed` at χ² 56 498, 0.15 µm off
 continuity, ½χ² 3e5 from its Gauss–Newton solution (887 iterations, 557 s)."""
 
 
+SEQUENCE_FEAS_UM = 1e-3
+"""... and only when the solution it started from is continuous to this (1 nm, 1/90 of the
+camera noise) or at least as continuous as the end: a point off continuity can have a
+lower χ² than the model's own, which is no reason to go back to it."""
+
+
 def _worse_sequence(prob0, best0, prob, best) -> dict | None:
-    """The excess χ² before and after when the decided sequence's solution is worse than
-    the one it started from (:data:`SEQUENCE_SLACK`), or not finite; else None."""
+    """The excess χ² (and continuity, µm) before and after when the decided sequence's
+    solution is worse than the one it started from (:data:`SEQUENCE_SLACK`,
+    :data:`SEQUENCE_FEAS_UM`), or not finite; else None."""
     try:
-        e0 = _excess(prob0, prob0.residuals(best0["w"]))
-        e1 = _excess(prob, prob.residuals(best["w"]))
+        r0, g0 = prob0.evaluate(best0["w"])
+        r1, g1 = prob.evaluate(best["w"])
     except Exception:  # (either cannot be evaluated: no comparison, the sequence stands)
         return None
-    if not np.isfinite(e0):
+    e0, e1 = _excess(prob0, r0), _excess(prob, r1)
+    f0 = float(np.abs(g0).max()) if g0.size else 0.0
+    f1 = float(np.abs(g1).max()) if g1.size else 0.0
+    if not (np.isfinite(e0) and np.isfinite(f0)):
         return None
     if np.isfinite(e1) and e1 <= e0 + SEQUENCE_SLACK:
         return None
-    return dict(excess_before=float(e0), excess_after=float(e1))
+    if np.isfinite(f1) and f0 > max(f1, SEQUENCE_FEAS_UM):
+        return None  # the start was further off continuity: its lower χ² is not the model's
+    return dict(excess_before=float(e0), excess_after=float(e1), continuity_before_um=f0, continuity_after_um=f1)
 
 
 def _full_tolerance(prob, best: dict) -> dict:

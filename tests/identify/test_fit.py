@@ -1709,8 +1709,9 @@ def test_worse_sequence_compares_excess_chi2():
         def __init__(self, n_obs):
             self.n = n_obs
 
-        def residuals(self, w):
-            return np.asarray(w, float)
+        def evaluate(self, w):
+            w = np.asarray(w, float)
+            return w[: self.n], w[self.n:]  # (residuals, then the continuity constraints)
 
         def chi2_constant(self):
             return 0.0
@@ -1723,9 +1724,13 @@ def test_worse_sequence_compares_excess_chi2():
     assert _worse_sequence(a, w0, b, {"w": np.full(98, 1.0)}) is None  # excess 0 both
     assert _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), np.sqrt(1 + SEQUENCE_SLACK)]}) is None
     x = _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), 2.0]})  # excess 3 > 2
-    assert x == {"excess_before": 0.0, "excess_after": 3.0}
+    assert x == {"excess_before": 0.0, "excess_after": 3.0, "continuity_before_um": 0.0, "continuity_after_um": 0.0}
     assert _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), np.nan]}) is not None
     assert _worse_sequence(a, {"w": np.full(100, np.inf)}, b, {"w": np.full(98, 5.0)}) is None
+    # a start off continuity (2 nm) is no solution to go back to, unless the end is further off
+    off = {"w": np.r_[np.full(100, 1.0), 2e-3]}
+    assert _worse_sequence(a, off, b, {"w": np.r_[np.full(97, 1.0), 2.0, 0.0]}) is None
+    assert _worse_sequence(a, off, b, {"w": np.r_[np.full(97, 1.0), 2.0, 0.15]}) is not None
 
 
 def test_an_unconverged_solve_near_its_solution_says_how_near():
