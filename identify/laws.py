@@ -156,7 +156,10 @@ class Logarithmic(AgingLaw):
         return p["mu_0"] + p["B"] * ops.log(1 + p["vc"] * state / p["dc"])
 
     def state_from_coefficient(self, mu, p, ops=np):
-        return (ops.exp((mu - p["mu_0"]) / p["B"]) - 1) * p["dc"] / p["vc"]
+        # (in numpy a coefficient far above μ0 overflows to an infinite age: that is the
+        # answer, not a fault to warn of in every diagnosis's logarithmic-law candidate)
+        with np.errstate(over="ignore"):
+            return (ops.exp((mu - p["mu_0"]) / p["B"]) - 1) * p["dc"] / p["vc"]
 
     state_bounds: tuple[float, float] = (0.0, 1e6)
 

@@ -110,3 +110,19 @@ def test_a_logistic_slip_can_start_below_mu_min():
 def test_unknown_law_lists_the_choices():
     with pytest.raises(ValueError, match="exponential, logarithmic, logistic"):
         get_law("power")
+
+
+def test_a_coefficient_beyond_reach_is_an_infinite_age_without_a_warning():
+    """The logarithmic law's age for a coefficient far above μ0 overflows to inf in numpy:
+    the answer (never reached), not a RuntimeWarning in every diagnosis."""
+    import warnings
+
+    import numpy as np
+
+    from identify.laws import get_law
+
+    law = get_law("logarithmic")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        age = law.state_from_coefficient(np.array([0.5, 20.0]), {"mu_0": 0.48, "B": 0.008, "dc": 2e-8, "vc": 1e-6})
+    assert np.isfinite(age[0]) and age[0] > 0 and np.isinf(age[1])
