@@ -309,7 +309,7 @@ def _solution_gap(prob, w) -> dict | None:
 def _gap_text(gap: dict) -> str:
     if not np.isfinite(gap["half_chi2"]):
         return f"its Gauss–Newton model has no solution here (continuity {gap['continuity_um']:.1g} µm)"
-    return (f"½χ² {gap['half_chi2']:.2g} above the solution its Gauss–Newton step predicts (the parameters within "
+    return (f"½χ² {gap['half_chi2']:.2g} away from the solution its Gauss–Newton step predicts (the parameters within "
             f"~{gap['within_se']:.2g} standard errors of it), continuity {gap['continuity_um']:.1g} µm")
 
 
