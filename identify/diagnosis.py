@@ -42,6 +42,7 @@ from scipy import stats
 from .candidates import GAVE_UP, GIVE_UP_MARGIN, MAGNITUDE_MOVED_Z, STALLED, CandidateTask, run_candidate
 from .effects import EFFECTS, display, get_effect
 from .events import _jsonable  # NaN/inf -> null, numpy -> Python
+from .executors import make_executor
 from .fit import FitError, FitOptions, fit
 from .heldout import folds_of
 from .nlp import NOT_DIFFERENTIABLE
@@ -138,43 +139,6 @@ class DiagnosisOptions:
             raise ValueError(f"resequence = {self.resequence!r}: use True, False or 'auto'")
         if not isinstance(self.resequence, str):  # (1, np.True_: diagnose() tests ``is True``)
             object.__setattr__(self, "resequence", bool(self.resequence))
-
-
-# ----------------------------------------------------------------------------- executors
-class _InProcess(cf.Executor):
-    """The Executor interface, run in this process (workers = 1; debugging)."""
-
-    def submit(self, fn, *args, **kwargs):
-        f: cf.Future = cf.Future()
-        try:
-            f.set_result(fn(*args, **kwargs))
-        except (KeyboardInterrupt, SystemExit):
-            raise
-        except BaseException as err:  # noqa: BLE001 - handed to the caller through the future
-            f.set_exception(err)
-        return f
-
-
-def make_executor(workers: int = 1, dask: str | None = None):
-    """(executor, closer): local processes, in-process, or a dask cluster's executor."""
-    if dask:
-        try:
-            from distributed import Client
-        except ImportError:
-            raise ValueError("--dask needs the optional dependency: pip install 'nanofrictor[dask]'") from None
-        client = Client(dask)
-        return client.get_executor(), client.close
-    if workers <= 1:
-        ex = _InProcess()
-        return ex, ex.shutdown
-    import multiprocessing as mp
-
-    # fork where the platform has it: a researcher's script without an
-    # ``if __name__ == "__main__"`` guard would run again in every spawned worker; the
-    # parent's CasADi thread pools are joined between calls, so forking is safe here
-    method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-    ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method))
-    return ex, ex.shutdown
 
 
 # ----------------------------------------------------------------------------- result

@@ -23,6 +23,7 @@ import concurrent.futures as cf
 from typing import Callable, Sequence
 
 from .effects import get_effect
+from .executors import InProcess
 
 __all__ = ["parting", "regime_screen", "screen_one"]
 
@@ -40,7 +41,7 @@ def regime_screen(ids: Sequence[str], law: str, free: Sequence[str], values: dic
     (the check's JSON), ``mismatched`` (how many runs), ``reproduces_regime``, and
     ``error`` where it could not be simulated. ``executor``: where the candidates are
     simulated (the diagnosis's workers; each candidate is one task), else one after
-    another here."""
+    another in this process."""
     say = progress or (lambda m: None)
     todo = [None] + list(dict.fromkeys(eid for eid in ids if not get_effect(eid).applicable(tuple(free), law)))
     law_of = {eid: (get_effect(eid).law or law) if eid else law for eid in todo}
@@ -51,24 +52,28 @@ def regime_screen(ids: Sequence[str], law: str, free: Sequence[str], values: dic
         return _record(eid, law_of[eid], error=f"{type(err).__name__}: {err}")
 
     say(f"regime screen: the current model and {len(todo) - 1} candidate(s) on {len(regime_runs)} run(s)")
-    if executor is None:
-        for k, (eid, a) in enumerate(zip(todo, args), 1):
-            recs[eid] = screen_one(*a)
-            say(f"regime screen: {k}/{len(todo)} done: {eid or 'current model'}")
-    else:
-        futs = {}
-        for eid, a in zip(todo, args):
-            try:
-                futs[executor.submit(screen_one, *a)] = eid
-            except Exception as err:  # a broken pool: that candidate is not screened
-                recs[eid] = failed(eid, err)
-        for fut in cf.as_completed(futs):
-            eid = futs[fut]
-            try:
-                recs[eid] = fut.result()
-            except Exception as err:  # a lost worker: that candidate is not screened
-                recs[eid] = failed(eid, err)
-            say(f"regime screen: {len(recs)}/{len(todo)} done: {eid or 'current model'}")
+    ex = executor if executor is not None else InProcess()
+
+    def collect(fut, eid):
+        try:
+            recs[eid] = fut.result()
+        except Exception as err:  # a lost worker: that candidate is not screened
+            recs[eid] = failed(eid, err)
+        say(f"regime screen: {len(recs)}/{len(todo)} done: {eid or 'current model'}")
+
+    futs = {}
+    for eid, a in zip(todo, args):
+        try:
+            fut = ex.submit(screen_one, *a)
+        except Exception as err:  # a broken pool: that candidate is not screened
+            recs[eid] = failed(eid, err)
+            continue
+        if fut.done():  # (in process: already run, said as it goes)
+            collect(fut, eid)
+        else:
+            futs[fut] = eid
+    for fut in cf.as_completed(futs):
+        collect(fut, futs[fut])
     out = [recs[eid] for eid in todo[1:]]
     out.sort(key=lambda r: (not r["reproduces_regime"], r["regime"] is None,
                             (r["regime"] or {}).get("chi2", float("inf"))))

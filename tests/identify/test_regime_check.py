@@ -296,9 +296,9 @@ def test_the_regime_screen_says_which_candidate_makes_runs_like_the_datas():
     assert screen[0]["error"] and not screen[0]["reproduces_regime"]
 
 
-def test_the_regime_screen_runs_in_the_diagnosis_workers():
+def test_the_regime_screen_runs_in_the_diagnosis_workers(monkeypatch):
     """Each candidate is one picklable task: the same records from worker processes as
-    here; a pool that breaks loses that candidate's record to an error, not the screen."""
+    in this process (the same loop, each said as it is done); a pool that breaks loses that candidate's record to an error, not the screen."""
     import concurrent.futures as cf
     import multiprocessing as mp
 
@@ -310,7 +310,21 @@ def test_the_regime_screen_runs_in_the_diagnosis_workers():
     rr = _left_out(tr)
     ids = ("drift", "aging_logistic")
     free = ("mu_max", "mu_min", "tau", "A")
-    here = regime_screen(ids, "exponential", free, TRUTH, [rr])
+    import identify.regime_screen as rs
+
+    ran, said_here = [], []
+    one = rs.screen_one
+
+    def counted(*a):
+        ran.append(a[0])
+        return one(*a)
+
+    with monkeypatch.context() as m:
+        m.setattr(rs, "screen_one", counted)
+        here = regime_screen(ids, "exponential", free, TRUTH, [rr], lambda msg: said_here.append((msg, len(ran))))
+    # in this process: one after another, each said as soon as it is done, not all at the end
+    assert [(m.split(": ", 1)[1], n) for m, n in said_here[1:]] == [
+        ("1/3 done: current model", 1), ("2/3 done: drift", 2), ("3/3 done: aging_logistic", 3)]
     said = []
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     with cf.ProcessPoolExecutor(max_workers=2, mp_context=ctx) as ex:
