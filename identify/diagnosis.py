@@ -1386,12 +1386,11 @@ def _try(best, others):
 
 def _resequence(current, runs, fopts, prob0, say):
     """The current model's mode sequence decided again (:func:`identify.fit.decide_sequence`),
-    from its solution: (current, runs, changed). Unchanged when no change to the sequence
-    lowers χ²; else the runs carry the new triggers and the next round measures the model
-    with them (the named candidate's scores stand: they were its evidence against the
+    from its solution: (current, runs, changed). Unchanged when the changes do not lower
+    the excess χ² (:func:`identify.fit._worse_sequence` with no slack); else the runs
+    carry the new triggers and the next round measures the model with them (the named candidate's scores stand: they were its evidence against the
     model without it, on the same sequence)."""
-    from .fit import decide_sequence
-    from .sequence import _excess  # χ² above its expectation: comparable across sequences
+    from .fit import _worse_sequence, decide_sequence
 
     p, w = _rebuild(current, runs, fopts, prob0)
     r0 = p.residuals(w)
@@ -1408,7 +1407,9 @@ def _resequence(current, runs, fopts, prob0, say):
     r = p2.residuals(sol["w"])
     differs = len(p2.runs) != len(runs) or any(
         not np.array_equal(a.trigger_steps, b.trigger_steps) for a, b in zip(p2.runs, runs))
-    if not differs or not (np.all(np.isfinite(r)) and _excess(p2, r) < _excess(p, r0)):
+    # (χ² above its expectation, comparable across sequences, must go down; a start off
+    # continuity is no reference: the fit's own rule with no slack)
+    if not differs or _worse_sequence(p, {"w": w}, p2, sol, slack=0.0) is not None:
         say("  the mode sequence stands")
         return dict(current, sequence_changes=dict(triggers_moved=0, slips_inserted=0, slips_removed=0)), runs, False
     values.update(zip(p2.theta.names, (float(v) for v in p2.theta.from_scaled(sol["w"][: p2.n_theta]))))

@@ -476,10 +476,13 @@ camera noise) or at least as continuous as the end: a point off continuity can h
 lower χ² than the model's own, which is no reason to go back to it."""
 
 
-def _worse_sequence(prob0, best0, prob, best) -> dict | None:
+def _worse_sequence(prob0, best0, prob, best, slack: float = SEQUENCE_SLACK) -> dict | None:
     """The excess χ² (and continuity, µm) before and after when the decided sequence's
-    solution is worse than the one it started from (:data:`SEQUENCE_SLACK`,
-    :data:`SEQUENCE_FEAS_UM`), or not finite; else None."""
+    solution is worse than the one it started from (by more than ``slack``, with
+    :data:`SEQUENCE_FEAS_UM`), or not finite; else None. The one rule for both places a
+    sequence is decided: a fit (:func:`decide_sequence`, :data:`SEQUENCE_SLACK`), and the
+    diagnosis deciding it again for a model with a named effect (slack 0: a change must
+    lower χ² to be adopted, since the named effect's scores were measured without it)."""
     try:
         r0, g0 = prob0.evaluate(best0["w"])
         r1, g1 = prob.evaluate(best["w"])
@@ -490,10 +493,11 @@ def _worse_sequence(prob0, best0, prob, best) -> dict | None:
     f1 = float(np.abs(g1).max()) if g1.size else 0.0
     if not (np.isfinite(e0) and np.isfinite(f0)):
         return None
-    if np.isfinite(e1) and e1 <= e0 + SEQUENCE_SLACK:
-        return None
-    if np.isfinite(f1) and f0 > max(f1, SEQUENCE_FEAS_UM):
-        return None  # the start was further off continuity: its lower χ² is not the model's
+    if np.isfinite(e1) and np.isfinite(f1):  # (an end not finite is worse, whatever the start)
+        if e1 <= e0 + slack:
+            return None
+        if f0 > max(f1, SEQUENCE_FEAS_UM):
+            return None  # the start was further off continuity: its lower χ² is not the model's
     return dict(excess_before=float(e0), excess_after=float(e1), continuity_before_um=f0, continuity_after_um=f1)
 
 

@@ -1731,6 +1731,12 @@ def test_worse_sequence_compares_excess_chi2():
     off = {"w": np.r_[np.full(100, 1.0), 2e-3]}
     assert _worse_sequence(a, off, b, {"w": np.r_[np.full(97, 1.0), 2.0, 0.0]}) is None
     assert _worse_sequence(a, off, b, {"w": np.r_[np.full(97, 1.0), 2.0, 0.15]}) is not None
+    # ... but an end that cannot be evaluated is never kept over it
+    assert _worse_sequence(a, off, b, {"w": np.r_[np.full(97, 1.0), np.nan, 0.0]}) is not None
+    assert _worse_sequence(a, off, b, {"w": np.r_[np.full(98, 1.0), np.nan]}) is not None
+    # the diagnosis's rule (slack 0): any rise in excess χ² keeps the sequence it had
+    assert _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), 1.1]}, slack=0.0) is not None
+    assert _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), 0.9]}, slack=0.0) is None
 
 
 def test_an_unconverged_solve_near_its_solution_says_how_near():
