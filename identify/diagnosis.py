@@ -282,7 +282,9 @@ REGIME_MISMATCH = "no resolvable slips and the model predicts stick-slip"
 def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float,
                      say: Callable[[str], None], executor: cf.Executor | None = None) -> "DiagnosisResult":
     """No run has a resolvable slip where the model, at the start parameters, stick-slips
-    in every one (measured: logistic-law data, which never re-age after a slip): there is
+    in every one, and the runs that creep as the model does, if any, are too few to fix the
+    parameters (measured: logistic-law data, which never re-age after a slip; with the
+    preset's stick option three runs creep, three means for four parameters): there is
     nothing to fit, and so no baseline to refine — a gap between the model and every run,
     which no candidate can be scored on by a refit. The verdict is ``unexplained``, with
     the regime named as where the misfit lives, and each candidate screened at its
@@ -293,6 +295,7 @@ def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float
 
     excluded = err.excluded
     n = len(excluded)
+    used = list(getattr(err, "used", []))
     current, screen = None, []
     if err.regime_runs:
         say(f"no baseline: screening the candidates on the {len(err.regime_runs)} run(s) left out for their regime")
@@ -306,8 +309,12 @@ def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float
                 closer()
     rc = (current or {}).get("regime") or {}
     p = float(rc["p_value"]) if rc.get("df") else 0.0
-    detail = (f"{n} of {n} runs show no resolvable slip, where the model at the coating's preset "
+    detail = (f"{n} of {n + len(used)} runs show no resolvable slip, where the model at the coating's preset "
               "stick-slips: " + "; ".join(f"{name}: {why}" for name, why in excluded))
+    n_obs, n_eff = getattr(err, "counts", None) or (float("nan"),) * 2
+    if used:
+        detail += (f"; the other {len(used)} run(s) ({', '.join(used)}) creep as the model does: {n_obs} "
+                   f"observation(s) for {n_eff} free dimension(s), too few to fit")
     if rc.get("df"):
         detail += (f"; read as the data were, {len(rc['mismatched'])} of {rc['df']} part from it "
                    f"(χ² {rc['chi2']:.1f}, df {rc['df']})")
@@ -317,10 +324,12 @@ def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float
     where0 = [Misfit(feature="regime", misfit_sigma=misfit_sigma(p), p_value=p,
                      statistic=float(rc.get("chi2", n)), detail=detail)]
     nan = float("nan")
-    notes = ["no baseline could be fitted: no run shows a resolvable slip where the model stick-slips in "
-             "every one, so no candidate could be scored by a refit and the data carry no slip to compare the "
-             "friction law with (record runs that stick-slip, or fit the creep levels from parameters under "
-             "which the model creeps)"]
+    why = ("no run shows a resolvable slip where the model stick-slips in every one" if not used else
+           f"{n} run(s) show no resolvable slip where the model stick-slips, and the {len(used)} that creep as "
+           f"the model does give {n_obs} observation(s) for {n_eff} free dimension(s)")
+    notes = [f"no baseline could be fitted: {why}, so no candidate could be scored by a refit and the data carry "
+             "no slip to compare the friction law with (record runs that stick-slip, or fit the creep levels from "
+             "parameters under which the model creeps)"]
     if screen:
         notes.append(_screen_note(current, screen))
     return DiagnosisResult(

@@ -273,6 +273,25 @@ def test_diagnosis_of_model_made_data_is_adequate(small_fit, tmp_path):
     assert len(paths) == 6 and all(p.stat().st_size > 0 for p in paths)
 
 
+def test_runs_that_part_with_too_few_creep_runs_beside_them_are_unexplained():
+    """One run without resolvable slips where the model stick-slips, one creeping as the
+    model does: one creep mean cannot fix four parameters, so there is no baseline either
+    (measured: logistic-law data with the preset's stick option, three creep runs)."""
+    flat = identify.simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=5, step_frequency_Hz=100,
+                             travel_um=5, params={"mu_max": 0.485}, stick_speed_m_per_s=1e-5
+                             ).sample(noise_nm=90, seed=0, name="flat0")
+    creep = identify.simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=10, step_frequency_Hz=1000,
+                              travel_um=5, stick_speed_m_per_s=1e-5).sample(noise_nm=90, seed=0, name="creep0")
+    res = diagnose([flat, creep], coating="FOTAS", fit_options=OPTS, options=DiagnosisOptions(effects=("drift",)))
+    assert res.verdict == "unexplained" and res.baseline is None and res.effects == []
+    d = res.where[0].detail
+    assert "1 of 2 runs show no resolvable slip" in d and "flat0" in d
+    assert "the other 1 run(s) (creep0) creep as the model does: 1 observation(s) for 4 free dimension(s)" in d
+    assert "and the 1 that creep as the model does give 1 observation(s)" in res.notes[0]
+    assert [r["effect"] for r in res.regime_screen] == [None, "drift"]  # screened on flat0 alone
+    assert res.regime_screen[0]["regime"]["df"] == 1
+
+
 def test_runs_without_slips_where_the_model_stick_slips_are_unexplained(tmp_path):
     """Nothing to fit (no run has a resolvable slip, the preset stick-slips in each): a
     verdict that says so, not an error — measured on the logistic-law withheld set."""

@@ -269,6 +269,30 @@ def test_uncertainty_under_other_covariances(small_fit):
         res.uncertainty("sandwich")
 
 
+def test_a_parameter_the_bread_cannot_fix_has_no_interval_in_any_covariance(small_fit, monkeypatch):
+    """Whatever the meat, a parameter whose information is singular (here τ, made so)
+    has no standard error, and its row and column are NaN, not the sandwich's."""
+    import identify.nlp as nlp_mod
+
+    solve = nlp_mod._information_solve
+    i_tau = list(small_fit.problem.theta.names).index("tau")
+
+    def tau_undetermined(K, rhs):
+        sol, und = solve(K, rhs)
+        und = und.copy()
+        und[i_tau] = True
+        return sol, und
+
+    monkeypatch.setattr(nlp_mod, "_information_solve", tau_undetermined)
+    for mode in ("robust", "cluster", "model"):
+        C = small_fit.problem.covariance(small_fit.w, robust=mode)
+        assert np.isnan(C[i_tau]).all() and np.isnan(C[:, i_tau]).all(), mode
+        others = [j for j in range(small_fit.problem.n_theta) if j != i_tau]
+        assert np.isfinite(C[np.ix_(others, others)]).all(), mode
+        u = small_fit.uncertainty(mode)
+        assert not np.isfinite(u["tau"]["stderr"] if u["tau"]["stderr"] is not None else np.nan)
+
+
 def test_a_staged_start_that_fits_worse_is_rejected(small_traces, monkeypatch):
     import identify.start as start_mod
 
@@ -1779,3 +1803,49 @@ def test_multistart_summary(small_traces):
     ms = res.multistart
     assert ms["starts"] == 3 and 1 <= ms["best_found"] <= 3
     assert "found" in res.report()
+
+
+def test_the_covariance_does_not_give_a_number_where_the_information_cannot_fix_one():
+    """A singular bread (information of rank 1 in two parameters beside a third, fixed
+    alone): the two are undetermined, not given the least-norm solution's small variances
+    (three creep means had put μmax at ± 0.03 %); the third keeps its exact variance. A
+    bread singular only up to rounding, which the factorisation gets through, is the same."""
+    import scipy.sparse as sp
+
+    from identify.nlp import SINGULAR_AMPLIFICATION, _information_solve
+
+    J = np.array([[1.0, 2.0, 0.0], [2.0, 4.0, 0.0], [0.0, 0.0, 3.0]])  # columns 0, 1 only as x0 + 2 x1
+    H = sp.csc_matrix(J.T @ J)
+    sol, und = _information_solve(H, np.eye(3))
+    assert und.tolist() == [True, True, False]
+    assert sol[2, 2] == pytest.approx(1 / 9)
+    # the combination they are seen in is estimable: its unit direction is in the range
+    c = np.array([[1.0], [2.0], [0.0]]) / 5.0
+    sol_c, und_c = _information_solve(H, c)
+    assert not und_c[0] and np.allclose(H @ sol_c, c)
+    # singular up to rounding: the factorisation succeeds with a pivot of rounding's size
+    eps = 1e-15
+    Hr = sp.csc_matrix(np.array([[1.0, 1.0, 0.0], [1.0, 1.0 + eps, 0.0], [0.0, 0.0, 2.0]]))
+    sol_r, und_r = _information_solve(Hr, np.eye(3))
+    assert np.all(np.isfinite(sol_r)) and np.abs(sol_r[:, 0]).max() > SINGULAR_AMPLIFICATION
+    assert und_r.tolist() == [True, True, False]
+    # well conditioned (a correlation of 0.9994, as μmin and A in the demo): determined
+    Hw = sp.csc_matrix(np.array([[1.0, 0.9994], [0.9994, 1.0]]))
+    assert not _information_solve(Hw, np.eye(2))[1].any()
+    # a bread that is not finite determines nothing
+    Hn = sp.csc_matrix(np.array([[np.nan, 0.0], [0.0, 1.0]]))
+    assert _information_solve(Hn, np.eye(2))[1].all()
+
+
+def test_too_few_observations_for_the_free_parameters_is_an_error_not_a_fit():
+    """A creep run gives one mean: alone it cannot fix four parameters. Before, such a
+    "fit" (three creep means, logistic-law data at Table II) reported μmax ± 0.03 %."""
+    creep = simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=10, step_frequency_Hz=1000,
+                     travel_um=5, stick_speed_m_per_s=V_STICK).sample(noise_nm=90, seed=0, name="creep0")
+    with pytest.raises(FitError, match=r"1 observation\(s\) for 4 free dimension\(s\) \(mu_max, mu_min, tau, A\)"
+                       r".*creep0 \(creep\).*free fewer parameters") as info:
+        fit([creep], options=FitOptions(fixed={"v_stick": V_STICK}))
+    assert info.value.used == ["creep0"] and info.value.counts == (1, 4)
+    # with fewer parameters free than means, the same run is fitted
+    res = fit([creep], options=FitOptions(fixed={"v_stick": V_STICK}, free=("mu_min",)))
+    assert res.problem.n_observations() >= res.problem.n_effective() and np.isfinite(res["mu_min"].value)
