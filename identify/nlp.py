@@ -1199,12 +1199,14 @@ class Problem:
             return near
         loc = a[:E].copy()
         nx = self.ev_next
-        np.maximum.at(loc, nx, a[nx - 1])
-        if a.size >= E + nx.size and self.n_s:
-            gs = a[E:E + nx.size]
-            np.maximum.at(loc, nx, gs)
-            np.maximum.at(loc, nx - 1, gs)
-        return loc < SHARE_FEAS
+        # (a constraint that could not be evaluated is NaN: its arcs are not near, no warning)
+        with np.errstate(invalid="ignore"):
+            np.maximum.at(loc, nx, a[nx - 1])
+            if a.size >= E + nx.size and self.n_s:
+                gs = a[E:E + nx.size]
+                np.maximum.at(loc, nx, gs)
+                np.maximum.at(loc, nx - 1, gs)
+            return loc < SHARE_FEAS
 
     def _cb_jac_shared(self) -> bool:
         """Whether the arcs' Jacobian is by forward differences shared among nearly equal

@@ -1,6 +1,8 @@
 """Forward differences shared among nearly equal arcs while the solver iterates
 (identify.arcs.share_groups, identify.nlp.SHARE_TOL)."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -178,6 +180,13 @@ def test_arcs_share_only_where_their_constraints_are_near_continuity(small):
     assert prob._cb_jac_shared() and prob._cb_jac.own.sum() == 2
     prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP, share=np.ones(prob.E, bool))
     assert prob._cb_jac.own is None
+    # a constraint that could not be evaluated (NaN): its arcs are not near, said without a warning
+    g[:] = 0.0
+    g[e] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        near = prob.near_continuity(g)
+    assert not near[e] and not near[e + 1] and near.sum() == prob.E - 2
 
 
 def test_the_covariance_on_shared_central_differences_agrees_with_each_arcs_own(small, monkeypatch):
