@@ -282,11 +282,11 @@ REGIME_MISMATCH = "no resolvable slips and the model predicts stick-slip"
 def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float,
                      say: Callable[[str], None], executor: cf.Executor | None = None) -> "DiagnosisResult":
     """No run has a resolvable slip where the model, at the start parameters, stick-slips
-    in every one, and the runs that creep as the model does, if any, are too few to fix the
-    parameters (measured: logistic-law data, which never re-age after a slip; with the
-    preset's stick option three runs creep, three means for four parameters): there is
-    nothing to fit, and so no baseline to refine — a gap between the model and every run,
-    which no candidate can be scored on by a refit. The verdict is ``unexplained``, with
+    in every one, and the runs that creep as the model does, if any, are too few to fix
+    the parameters (measured: logistic-law data, which never re-age after a slip; with
+    the stick option as written, v_stick = 0, three of them creep: three means for four
+    parameters): there is nothing to fit, and so no baseline to refine — a gap between
+    the model and every run, which no candidate can be scored on by a refit. The verdict is ``unexplained``, with
     the regime named as where the misfit lives, and each candidate screened at its
     realistic magnitude against the runs' regime (:mod:`identify.regime_screen`): which
     of them could make such runs, said, not named. The screen runs on ``executor`` (or
@@ -1397,8 +1397,9 @@ def _resequence(current, runs, fopts, prob0, say):
     """The current model's mode sequence decided again (:func:`identify.fit.decide_sequence`),
     from its solution: (current, runs, changed). Unchanged when the changes do not lower
     the excess χ² (:func:`identify.fit._worse_sequence` with no slack); else the runs
-    carry the new triggers and the next round measures the model with them (the named candidate's scores stand: they were its evidence against the
-    model without it, on the same sequence)."""
+    carry the new triggers and the next round measures the model with them (the named
+    candidate's scores stand: they were its evidence against the model without it, on
+    the same sequence)."""
     from .fit import _worse_sequence, decide_sequence
 
     p, w = _rebuild(current, runs, fopts, prob0)

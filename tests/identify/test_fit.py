@@ -277,8 +277,8 @@ def test_a_parameter_the_bread_cannot_fix_has_no_interval_in_any_covariance(smal
     solve = nlp_mod._information_solve
     i_tau = list(small_fit.problem.theta.names).index("tau")
 
-    def tau_undetermined(K, rhs):
-        sol, und = solve(K, rhs)
+    def tau_undetermined(K, rhs, n_primal=None):
+        sol, und = solve(K, rhs, n_primal)
         und = und.copy()
         und[i_tau] = True
         return sol, und
@@ -1832,6 +1832,11 @@ def test_the_covariance_does_not_give_a_number_where_the_information_cannot_fix_
     # well conditioned (a correlation of 0.9994, as μmin and A in the demo): determined
     Hw = sp.csc_matrix(np.array([[1.0, 0.9994], [0.9994, 1.0]]))
     assert not _information_solve(Hw, np.eye(2))[1].any()
+    # a constraint fixes x0 through a tiny Jacobian entry: its multiplier is huge, x0 is not
+    Kc = sp.csc_matrix(np.array([[1.0, 0.0, 1e-13], [0.0, 1.0, 0.0], [1e-13, 0.0, 0.0]]))
+    sol_k, und_k = _information_solve(Kc, np.eye(3)[:, :2], n_primal=2)
+    assert np.abs(sol_k[2, 0]) > SINGULAR_AMPLIFICATION and not und_k.any()
+    assert _information_solve(Kc, np.eye(3)[:, :2])[1][0]  # (counted with the multipliers, it would be)
     # a bread that is not finite determines nothing
     Hn = sp.csc_matrix(np.array([[np.nan, 0.0], [0.0, 1.0]]))
     assert _information_solve(Hn, np.eye(2))[1].all()
