@@ -1252,7 +1252,8 @@ def _own_text(own: dict) -> str:
         return f"deciding its own mode sequence failed: {own['error']}"
     if not own.get("changed"):
         return "its own mode sequence is the current model's"
-    moved = (f"{own['triggers_moved']} trigger(s) moved, {own['slips_inserted']} slip(s) inserted, "
+    moved = (("from the detected one, " if own.get("from_detected") else "")
+             + f"{own['triggers_moved']} trigger(s) moved, {own['slips_inserted']} slip(s) inserted, "
              f"{own['slips_removed']} removed")
     before = own["heldout_gap_before_um"]
     ctrl = own.get("current_resequenced")

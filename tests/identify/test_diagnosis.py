@@ -1128,6 +1128,9 @@ def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(mo
     assert rec["closed_fraction"] == pytest.approx((ex(0.15) - ex(0.05)) / ex(0.15))
     assert "against the current model's 150.0 nm on the sequence it decides again" in dg._own_text(rec)
     assert rec["refits"] == 2
+    # decided from the detected sequence: its counts are from there, and the text says so
+    assert "it decides (from the detected one, " in dg._own_text(dict(rec, from_detected=True))
+    assert "from the detected one" not in dg._own_text(rec)
     # a failure is recorded, not raised: the candidate is judged on the current sequence,
     # also when only the control failed (its comparison alone would be the unfair one)
 
