@@ -804,14 +804,11 @@ def test_a_named_model_decides_its_sequence_from_the_detected_one_too(offset_bas
     res = diagnose(None, baseline=offset_baseline,
                    options=DiagnosisOptions(effects=("load_offset",), resequence=True), progress=said.append)
     assert res.effects == ["load_offset"], res.report()
-    c = res.candidates[0]
     line = next(m for m in said if m.startswith("  from the sequence as detected (the fits' changes undone)"))
     before, after = (float(x) for x in line.rsplit("χ² ", 1)[1].split(" -> "))
     assert after < before - 100, line
     assert res.timing["refits"] == 3  # the baseline, the candidate, and the named model on its new sequence
-    assert res.final["values"]["load_offset"] == pytest.approx(2e-6, rel=0.05)
-    print(before, after, c["heldout_gap_after_um"], res.final["heldout_gap_um"], res.final["values"]["load_offset"],
-          c["estimates"]["load_offset"])
+    assert res.final["values"]["load_offset"] == pytest.approx(2e-6, rel=0.05)  # (± 3 of its 1.6 % errors)
 
 
 def test_auto_resequencing_only_while_the_named_model_misfits(offset_baseline):
