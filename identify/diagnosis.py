@@ -46,7 +46,7 @@ from .executors import make_executor
 from .fit import FitError, FitOptions, fit
 from .heldout import folds_of
 from .nlp import NOT_DIFFERENTIABLE
-from .regime_screen import parting, regime_screen
+from .regime_screen import moved_text, own_screen, parting, regime_screen, smallest_moves
 from .where import where, with_regime
 
 __all__ = ["DiagnosisOptions", "DiagnosisResult", "diagnose", "make_executor"]
@@ -161,6 +161,8 @@ class DiagnosisResult:
     # no baseline (every run left out for its regime): the current model, then each
     # candidate at its realistic magnitude, against the runs' regime (identify.regime_screen)
     regime_screen: list = field(default_factory=list)
+    # ... and the current model with one of its own parameters moved (identify.regime_screen.own_screen)
+    regime_moves: list = field(default_factory=list)
     final_problem: Any = field(repr=False, default=None)
     final_w: Any = field(repr=False, default=None)
 
@@ -215,7 +217,15 @@ class DiagnosisResult:
                 name = r["effect"] or "(current model)"
                 part = parting(r) or "-"
                 note = "reproduces the regime" if r["reproduces_regime"] else (r.get("error") or "")
+                if r.get("confounded_with"):
+                    note += f"; confounded with {', '.join(r['confounded_with'])}"
                 L.append(f"    {name:24s} {part:>13s} {rc.get('chi2', float('nan')):9.1f}  {note}")
+            for r in smallest_moves(self.regime_moves):
+                L.append(f"    {'(current model, moved)':24s} {parting(r):>13s} {r['regime']['chi2']:9.1f}  "
+                         f"reproduces the regime with {moved_text(r)}")
+            if self.regime_moves:
+                L.append(f"    ({len(self.regime_moves)} move(s) of the current model's own parameters tried, one "
+                         "at a time toward each bound)")
         for n in self.notes:
             L.append(f"    note: {n}")
         return "\n".join(L)
@@ -234,7 +244,7 @@ class DiagnosisResult:
                          workers=self.options.workers, dask=bool(self.options.dask),
                          gap_tolerance=self.options.gap_tolerance, resequence=self.options.resequence,
                          magnitude_check=self.options.magnitude_check),
-            timing=self.timing, notes=self.notes, regime_screen=self.regime_screen,
+            timing=self.timing, notes=self.notes, regime_screen=self.regime_screen, regime_moves=self.regime_moves,
         )
 
     def save_json(self, path) -> Path:
@@ -296,7 +306,7 @@ def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float
     excluded = err.excluded
     n = len(excluded)
     used = list(getattr(err, "used", []))
-    current, screen = None, []
+    current, screen, moves = None, [], []
     if err.regime_runs:
         say(f"no baseline: screening the candidates on the {len(err.regime_runs)} run(s) left out for their regime")
         # each candidate simulated in the diagnosis's workers, as its refits would be
@@ -304,6 +314,7 @@ def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float
         try:
             current, screen = regime_screen(opts.effects, fopts.law, fopts.free, err.values, err.regime_runs, say,
                                             executor=own)
+            moves = own_screen(fopts.law, fopts.free, err.values, err.regime_runs, say, executor=own)
         finally:
             if closer is not None:
                 closer()
@@ -330,20 +341,44 @@ def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float
     notes = [f"no baseline could be fitted: {why}, so no candidate could be scored by a refit and the data carry "
              "no slip to compare the friction law with (record runs that stick-slip, or fit the creep levels from "
              "parameters under which the model creeps)"]
+    reproducing = smallest_moves(moves)
+    confounded = _screen_confounded(screen, reproducing)
     if screen:
-        notes.append(_screen_note(current, screen))
+        notes.append(_screen_note(current, screen, reproducing))
     return DiagnosisResult(
         verdict="unexplained", effects=[], where=where0, where_final=where0, candidates=[], rounds=[],
         baseline=None, final=dict(law=None, free=[], values={}, gap_um=nan, heldout_gap_um=nan, noise_um=nan,
                                   heldout_gap_ratio=nan),
-        confounded=[], options=opts, timing=dict(total_s=time.perf_counter() - t0, refits=0, baseline_fit_s=nan),
-        notes=notes, regime_screen=([dict(current)] if current else []) + screen,
+        confounded=confounded, options=opts,
+        timing=dict(total_s=time.perf_counter() - t0, refits=0, baseline_fit_s=nan),
+        notes=notes, regime_screen=([dict(current)] if current else []) + screen, regime_moves=moves,
     )
 
 
-def _screen_note(current: dict, screen: list) -> str:
+def _screen_confounded(screen: list, reproducing: list) -> list:
+    """Candidates that make runs like the data's when the current model, with one of its
+    own parameters moved, makes them too (:func:`identify.regime_screen.own_screen`): the
+    runs cannot tell them apart, so each such candidate is confounded with those
+    parameters (``confounded_with`` on its screen record) and a group says why."""
+    if not reproducing:
+        return []
+    params = sorted({n for r in reproducing for n in r["moved"]})
+    moved = " or ".join(moved_text(r) for r in reproducing)
+    groups = []
+    for r in screen:
+        if r["reproduces_regime"]:
+            r["confounded_with"] = list(params)
+            groups.append(dict(effects=[r["effect"]], confounded_with=list(params), closes=False,
+                               why=(f"makes runs like the data's, and so does the current model with {moved}: "
+                                    "these runs cannot tell them apart")))
+    return groups
+
+
+def _screen_note(current: dict, screen: list, reproducing: list = ()) -> str:
     """What the regime screen found, in a sentence: which candidates make runs like the
-    data's, against the current model — a pointer, not a name."""
+    data's, against the current model — a pointer, not a name — and whether the current
+    model makes them too with one of its own parameters moved (``reproducing``:
+    :func:`identify.regime_screen.smallest_moves`), which confounds those candidates."""
     def runs(r):
         part = parting(r)
         return f"{part} runs, χ² {r['regime']['chi2']:.1f}" if part else f"? ({r['error']})"
@@ -354,14 +389,24 @@ def _screen_note(current: dict, screen: list) -> str:
     head = (f"regime screen (the fit's start values, each candidate at its realistic magnitude, the runs read "
             f"as the data were): the current model parts from {runs(current)}; ")
     tail = f"; not simulated in every run: {', '.join(failed)}" if failed else ""
+    moved = " or ".join(moved_text(r) for r in reproducing)
     if not yes:
-        return head + "no candidate reproduces the runs' regime" + tail
+        own = (f". The current model itself makes runs like these with {moved}: fit their creep levels from there"
+               if moved else "")
+        return head + "no candidate reproduces the runs" + tail + own
     lo, hi = (min(r["mismatched"] for r in others), max(r["mismatched"] for r in others)) if others else (0, 0)
-    left = (f"; every other candidate parts from {lo}-{hi} runs" if others and lo != hi else
-            f"; every other candidate parts from {lo} runs" if others else "")
-    return (head + ", ".join(r["effect"] for r in yes) + " reproduce" + ("s" if len(yes) == 1 else "")
-            + " it (no run parts)" + left + tail + ". Not named: nothing was fitted (the start's friction, "
-            "the library's magnitude), so this says which candidate to fit, not that it is the cause")
+    span = f"{lo}-{hi}" if lo != hi else f"{lo}"
+    left = f"; every other candidate parts from {span} run(s) (or from their largest slips)" if others else ""
+    names = ", ".join(r["effect"] for r in yes)
+    also = f", and so does the current model with {moved}" if moved else ""
+    text = (head + names + " reproduce" + ("s" if len(yes) == 1 else "")
+            + " them (no run parts, the largest slips agree)" + also + left + tail)
+    if moved:
+        params = ", ".join(sorted({n for r in reproducing for n in r["moved"]}))
+        return (text + f". Confounded with {params}, not named: these runs cannot tell {names} from the current "
+                "model at such values, and nothing was fitted")
+    return (text + ". Not named: nothing was fitted (the start's friction, the library's magnitude), so this says "
+            "which candidate to fit, not that it is the cause")
 
 
 def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None = None,

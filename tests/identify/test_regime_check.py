@@ -353,3 +353,62 @@ def test_the_regime_screen_runs_in_the_diagnosis_workers(monkeypatch):
     logistic = next(r for r in screen if r["effect"] == "aging_logistic")
     assert logistic["error"] == "BrokenProcessPool: worker lost" and not logistic["reproduces_regime"]
     assert logistic["law"] == "logistic"  # recorded under its own law, not the current model's
+
+
+def _once():
+    """A run that slips once and never again (the logistic law at Table II), left out."""
+    tr = (identify.simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=10, step_frequency_Hz=100,
+                            travel_um=8, law="logistic", params=TRUTH, stick_speed_m_per_s=1e-5)
+          .sample(noise_nm=90, seed=3, name="once"))
+    return _left_out(tr)
+
+
+def test_a_model_reproduces_runs_only_with_their_largest_slip():
+    """A mismatch is one-sided (model slips the data lack); to reproduce a run the model
+    must also make its first slip. Measured on the run that slips once (1.70 µm): the
+    exponential law with μmax = 0.5 parts from it nowhere but slips 0.29 µm (7.4 units);
+    with τ = 67.4 s it slips 1.75 µm (0.4), as the logistic law does."""
+    from identify.regime_check import SLIP_P, slip_floor
+
+    rr = _once()
+    little_aging = regime_check(MODEL, {**TRUTH, "mu_max": 0.5}, [rr])
+    assert not little_aging.mismatched and little_aging.slip_p < SLIP_P and not little_aging.reproduces
+    slow = regime_check(MODEL, {**TRUTH, "tau": 67.4}, [rr])
+    assert not slow.mismatched and slow.slip_p > 0.1 and slow.reproduces
+    assert slow.to_json()["reproduces"] is True and slow.to_json()["slip_chi2"] == pytest.approx(slow.slip_chi2)
+    # below the floor (twice the noise's own largest "slip") a slip is not compared: the
+    # data's 0.3 µm of noise and a model slip no larger than the floor agree
+    flat = _flat(slip=0.3e-6)
+    floor = slip_floor(flat)
+    assert 0.6e-6 < floor < 0.9e-6  # 2·√2·90 nm·Φ⁻¹(1 − 1/600)
+    quiet = regime_check(MODEL, {**TRUTH, "mu_max": 0.485}, [flat])
+    assert quiet.runs[0]["model_slip_um"] * 1e-6 < floor and quiet.runs[0]["slip_z"] == 0.0
+
+
+def test_own_moves_step_each_free_parameter_toward_its_bounds():
+    from identify.regime_screen import own_moves
+
+    values = {"mu_max": 0.796, "mu_min": 0.484, "tau": 0.0674, "A": 0.0}
+    moves = own_moves(("tau", "mu_max", "A", "dc"), values)  # dc has no value here: not moved
+    tau = [m["tau"] for m in moves if "tau" in m]
+    assert tau == pytest.approx([6.74e-3, 6.74e-4, 6.74e-5, 6.74e-6, 0.674, 6.74, 67.4, 674])
+    # down, μmax stops where it would fall below μmin (0.597, then 0.398 is refused); up, to its bound
+    assert [m["mu_max"] for m in moves if "mu_max" in m] == pytest.approx([0.597, 1.347, 1.898, 2.449, 3.0])
+    assert [m["A"] for m in moves if "A" in m] == pytest.approx([0.25, 0.5, 0.75, 1.0])  # at its lower bound
+    assert all(len(m) == 1 for m in moves)
+
+
+def test_the_current_model_with_a_moved_parameter_confounds_a_candidate():
+    """The run that slips once: the logistic law makes it, and so does the exponential law
+    with τ ≥ 0.674 s (10×; on the withheld set's eight longer runs, ≥ 67.4 s); faster aging
+    does not."""
+    from identify.regime_screen import moved_text, own_screen, smallest_moves
+
+    recs = own_screen("exponential", ("tau",), TRUTH, [_once()])
+    assert len(recs) == 8 and all(r["start"] == {"tau": TRUTH["tau"]} for r in recs)
+    assert [r["reproduces_regime"] for r in recs] == [False] * 4 + [True] * 4
+    (best,) = smallest_moves(recs)
+    assert best["moved"] == {"tau": pytest.approx(0.674)}
+    assert moved_text(best) == "tau ≥ 0.674 (10× the start)"
+    assert moved_text(recs[-1]) == "tau ≥ 674 (10000× the start)"
+    json.dumps(recs)
