@@ -69,7 +69,9 @@ def case(eid, scale, quick, workers, seed=0, progress=None):
         fopts = _baseline_options(eid)
     res = diagnose(traces, fit_options=fopts, options=DiagnosisOptions(workers=workers), progress=progress)
     first = {c["effect"]: c for c in res.candidates}
-    truth = first.get(ids[0] if ids else eid, {})
+    # (no baseline: the withheld effect's screen record, which may say what it is confounded with)
+    screened = {r["effect"]: r for r in res.regime_screen if r["effect"]}
+    truth = first.get(ids[0] if ids else eid) or screened.get(ids[0] if ids else eid, {})
     extra = {}
     if ids:  # each withheld effect: its first-round evidence, and whether it was named
         extra["truth_by_effect"] = {e: dict(named=e in res.effects, p=first.get(e, {}).get("p_value"),
@@ -78,7 +80,8 @@ def case(eid, scale, quick, workers, seed=0, progress=None):
                                             estimates=first.get(e, {}).get("estimates"))
                                     for e in ids}
     return dict(effect=eid, scale=scale, magnitude=mag, verdict=res.verdict, named=res.effects, **extra,
-                confounded=[g["effects"] for g in res.confounded],
+                # a group confounded with the model's own parameters names them after its effects
+                confounded=[g["effects"] + list(g.get("confounded_with", [])) for g in res.confounded],
                 truth_confounded_with=truth.get("confounded_with"), truth_p=truth.get("p_value"),
                 truth_delta_aic=truth.get("delta_aic"), truth_status=truth.get("status"),
                 truth_rounds=truth.get("rounds"),
