@@ -122,7 +122,8 @@ def own_moves(free: Sequence[str], values: dict) -> list[dict]:
                 continue
             if spec.log:
                 up = bound > v
-                steps = [min(v * 10.0 ** j, bound) if up else max(v / 10.0 ** j, bound) for j in range(1, MOVE_STEPS + 1)]
+                steps = [min(v * 10.0 ** j, bound) if up else max(v / 10.0 ** j, bound)
+                         for j in range(1, MOVE_STEPS + 1)]
             else:
                 steps = [v + (bound - v) * j / MOVE_STEPS for j in range(1, MOVE_STEPS + 1)]
             for x in dict.fromkeys(steps):
@@ -137,28 +138,36 @@ def own_moves(free: Sequence[str], values: dict) -> list[dict]:
 def smallest_moves(records: Sequence[dict]) -> list[dict]:
     """The own-parameter records (:func:`own_screen`) that reproduce the runs, the
     smallest move per parameter and direction: each is where the current model's own
-    parameter, moved that far, makes runs like the data's."""
-    best = {}
+    parameter, moved that far, makes runs like the data's. Each gets ``holds_beyond``:
+    whether every farther move tried in that direction makes them too."""
+    best, tried = {}, {}
     for r in records:
-        if not r.get("reproduces_regime"):
-            continue
         (name, x), = r["moved"].items()
         v = r["start"][name]
         key = (name, x > v)
-        if key not in best or abs(x - v) < abs(best[key]["moved"][name] - v):
+        tried.setdefault(key, []).append(r)
+        if r.get("reproduces_regime") and (key not in best or abs(x - v) < abs(best[key]["moved"][name] - v)):
             best[key] = r
+    for key, r in best.items():
+        (name, x), = r["moved"].items()
+        v = r["start"][name]
+        farther = [o for o in tried[key] if abs(o["moved"][name] - v) > abs(x - v)]
+        r["holds_beyond"] = all(o.get("reproduces_regime") for o in farther)
     return list(best.values())
 
 
 def moved_text(r: dict, arrow: bool = False) -> str:
-    """A move record in words: 'tau ≥ 67.4 (1000× the start)', or with ``arrow`` 'tau 0.0674 -> 67.4'."""
+    """A move record in words: 'tau ≥ 67.4 (1000× the start)' (or 'tau = 67.4' where a
+    farther move did not reproduce the runs, :func:`smallest_moves`), or with ``arrow``
+    'tau 0.0674 -> 67.4'."""
     (name, x), = r["moved"].items()
     v = r["start"][name]
     ratio = x / v if v > 0 else 0.0
     rel = f" ({ratio:.3g}× the start)" if 0 < ratio < 1000 else f" ({ratio:.0f}× the start)" if ratio else ""
     if arrow:
         return f"{name} {v:.4g} -> {x:.4g}{rel}"
-    return f"{name} {'≥' if x > v else '≤'} {x:.4g}{rel}"
+    sign = ("≥" if x > v else "≤") if r.get("holds_beyond", True) else "="
+    return f"{name} {sign} {x:.4g}{rel}"
 
 
 def _run_all(tasks, law_of, label, say, executor, record=None) -> dict:

@@ -408,7 +408,11 @@ def test_the_current_model_with_a_moved_parameter_confounds_a_candidate():
     assert len(recs) == 8 and all(r["start"] == {"tau": TRUTH["tau"]} for r in recs)
     assert [r["reproduces_regime"] for r in recs] == [False] * 4 + [True] * 4
     (best,) = smallest_moves(recs)
-    assert best["moved"] == {"tau": pytest.approx(0.674)}
+    assert best["moved"] == {"tau": pytest.approx(0.674)} and best["holds_beyond"]
     assert moved_text(best) == "tau ≥ 0.674 (10× the start)"
     assert moved_text(recs[-1]) == "tau ≥ 674 (10000× the start)"
     json.dumps(recs)
+    # a farther move that does not make them: said as the one value found, not a range
+    recs[-1] = {**recs[-1], "reproduces_regime": False}
+    (best,) = smallest_moves(recs)
+    assert not best["holds_beyond"] and moved_text(best) == "tau = 0.674 (10× the start)"
