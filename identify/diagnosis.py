@@ -286,7 +286,7 @@ def _cand_json(c: dict) -> dict:
 # ----------------------------------------------------------------------------- driver
 # identify.fit's reason for a run without resolvable slips where the model makes them (a
 # model that steps in slips below the noise agrees with such a run: that is no mismatch)
-REGIME_MISMATCH = "no resolvable slips and the model predicts stick-slip"
+REGIME_MISMATCH = "the model predicts stick-slip"
 
 
 def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float,

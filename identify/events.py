@@ -1013,12 +1013,19 @@ def _creep_ratio(t, b, segs, sigma, puller_speed) -> tuple[float, float]:
     return num / den / puller_speed, math.sqrt(var) / den / puller_speed
 
 
+def plateaus_move(ev: RunEvents) -> bool:
+    """The block moves during the plateaus the segmentation found at more than
+    :data:`CREEP_RATIO_LIMIT` of the puller speed (3 standard errors clear of it)."""
+    cr, cse = ev.creep_ratio, ev.creep_ratio_se
+    return bool(math.isfinite(cr) and cr > CREEP_RATIO_LIMIT and cr > 3 * cse)
+
+
 def _classify(ev: RunEvents) -> str:
     """Regime from the data (see :class:`RunEvents`)."""
     if ev.n_slips < 2:
         return "no-slip"
     cr, cse = ev.creep_ratio, ev.creep_ratio_se
-    if math.isfinite(cr) and cr > CREEP_RATIO_LIMIT and cr > 3 * cse:
+    if plateaus_move(ev):
         ev.warnings.append(
             f"the block moves during its plateaus at {cr:.2f} ± {cse:.2f} of the puller speed: "
             "creep or stepping, the slips found are pieces of a ramp"

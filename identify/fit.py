@@ -666,8 +666,15 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
             regime_runs.append(RegimeRun.of(rd))
         except Exception as err:  # (odd metadata): the run is left out all the same
             say(f"warning: {rd.name}: cannot be checked against the model later: {err}")
+    v_stick = float({**preset, **opts.start}.get("v_stick", 0.0))
+    stepping = {}  # name -> why: runs that step between their slips under the stick option
     for ev in runs_ev:
-        rd = _run_data(ev)
+        rd = _run_data(ev, v_stick=v_stick)
+        if rd.kind == "creep" and _run_data(ev).kind == "events":
+            stepping[rd.name] = (f"the block moves during its plateaus at {ev.creep_ratio:.2f} of the puller "
+                                 f"speed: it steps between its slips, which the model under the stick option "
+                                 f"(v_stick = {v_stick:.3g} m/s) makes only through releases its detected slips lack")
+            say(f"{rd.name}: {stepping[rd.name]}; used only where the model creeps too")
         if rd.kind == "creep":
             if not opts.use_creep_runs:
                 excluded.append((rd.name, f"no resolvable slips (data regime {ev.regime})"))
@@ -696,8 +703,8 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
                 if sim.regime == "creep":
                     kept.append(r)
                 else:
-                    excluded.append((r.name, f"no resolvable slips and the model predicts {sim.regime}, "
-                                             "not steady creep"))
+                    why = f"{stepping[r.name]};" if r.name in stepping else "no resolvable slips and"
+                    excluded.append((r.name, f"{why} the model predicts {sim.regime}, not steady creep"))
                     keep_for_regime(r)
             except Exception as err:
                 excluded.append((r.name, f"no resolvable slips; creep check failed: {err}"))

@@ -221,7 +221,9 @@ def regime_check(model, values: dict, runs) -> RegimeCheck | None:
                             offset_m=float(values.get("e_offset", 0.0)),
                             metadata=dict(step_size_nm=rr.step_m * 1e9, step_phase=0.0))
             ev = extract_events(tr, noise_m=rr.noise_m)
-            fitted_for_slips = _run_data(ev).kind == "events"
+            # (read as the fit reads runs: one that steps between its slips under the
+            # stick option is not fitted for them, the model's no more than the data's)
+            fitted_for_slips = _run_data(ev, v_stick=float(values.get("v_stick", 0.0))).kind == "events"
             slip, steady = largest_slip(ev), largest_slip(ev, after_first=True)
             excess = max(slip - rr.largest_slip_m, 0.0 if rr.steady_slip_m is None else steady - rr.steady_slip_m,
                          0.0)
