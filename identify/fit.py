@@ -677,7 +677,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
             say(f"{rd.name}: {stepping[rd.name]}; used only where the model creeps too")
         if rd.kind == "creep":
             if not opts.use_creep_runs:
-                excluded.append((rd.name, f"no resolvable slips (data regime {ev.regime})"))
+                excluded.append((rd.name, stepping.get(rd.name, f"no resolvable slips (data regime {ev.regime})")))
                 keep_for_regime(rd)
                 continue
         if rd.kind == "events" and len(rd.trigger_steps) < 1:
