@@ -54,8 +54,9 @@ def regime_screen(ids: Sequence[str], law: str, free: Sequence[str], values: dic
     todo = [None] + list(dict.fromkeys(eid for eid in ids if not get_effect(eid).applicable(tuple(free), law)))
     law_of = {eid: (get_effect(eid).law or law) if eid else law for eid in todo}
     say(f"regime screen: the current model and {len(todo) - 1} candidate(s) on {len(regime_runs)} run(s)")
-    recs = _run_all([(eid, (eid, law, dict(values), list(regime_runs))) for eid in todo], law_of,
-                    lambda eid: eid or "current model", say, executor)
+    recs = _run_all([(eid, (eid, law, dict(values), list(regime_runs))) for eid in todo],
+                    lambda eid: eid or "current model", say, executor,
+                    record=lambda eid, **kw: _record(eid, law_of[eid], **kw))
     out = [recs[eid] for eid in todo[1:]]
     out.sort(key=lambda r: (not r["reproduces_regime"], r["regime"] is None,
                             (r["regime"] or {}).get("chi2", float("inf"))))
@@ -83,7 +84,7 @@ def own_screen(law: str, free: Sequence[str], values: dict, regime_runs: Sequenc
     keys = list(range(len(moves)))
     start = {i: {n: float(values[n]) for n in moves[i]} for i in keys}
     recs = _run_all([(i, (None, law, dict(values), list(regime_runs), moves[i])) for i in keys],
-                    {i: law for i in keys}, lambda i: moved_text({"moved": moves[i], "start": start[i]}, arrow=True),
+                    lambda i: moved_text({"moved": moves[i], "start": start[i]}, arrow=True),
                     say, executor, record=lambda i, **kw: {**_record(None, law, **kw), "moved": dict(moves[i])})
     for i in keys:
         recs[i]["start"] = start[i]
@@ -138,8 +139,9 @@ def own_moves(free: Sequence[str], values: dict) -> list[dict]:
 def smallest_moves(records: Sequence[dict]) -> list[dict]:
     """The own-parameter records (:func:`own_screen`) that reproduce the runs, the
     smallest move per parameter and direction: each is where the current model's own
-    parameter, moved that far, makes runs like the data's. Each gets ``holds_beyond``:
-    whether every farther move tried in that direction makes them too."""
+    parameter, moved that far, makes runs like the data's. Each is returned as a copy
+    with ``holds_beyond``: whether every farther move tried in that direction makes them
+    too."""
     best, tried = {}, {}
     for r in records:
         (name, x), = r["moved"].items()
@@ -148,12 +150,13 @@ def smallest_moves(records: Sequence[dict]) -> list[dict]:
         tried.setdefault(key, []).append(r)
         if r.get("reproduces_regime") and (key not in best or abs(x - v) < abs(best[key]["moved"][name] - v)):
             best[key] = r
+    out = []
     for key, r in best.items():
         (name, x), = r["moved"].items()
         v = r["start"][name]
         farther = [o for o in tried[key] if abs(o["moved"][name] - v) > abs(x - v)]
-        r["holds_beyond"] = all(o.get("reproduces_regime") for o in farther)
-    return list(best.values())
+        out.append({**r, "holds_beyond": all(o.get("reproduces_regime") for o in farther)})
+    return out
 
 
 def moved_text(r: dict, arrow: bool = False) -> str:
@@ -170,11 +173,11 @@ def moved_text(r: dict, arrow: bool = False) -> str:
     return f"{name} {sign} {x:.4g}{rel}"
 
 
-def _run_all(tasks, law_of, label, say, executor, record=None) -> dict:
+def _run_all(tasks, label, say, executor, record) -> dict:
     """Each task (key, args of :func:`screen_one`) through ``executor`` (else in this
     process), each said as it is done; key -> record. A task that cannot be submitted, or
-    whose worker is lost, is recorded with its error: one never sinks the screen."""
-    record = record or (lambda key, **kw: _record(key, law_of[key], **kw))
+    whose worker is lost, is recorded with its error (``record(key, error=...)``): one
+    never sinks the screen."""
     ex = executor if executor is not None else InProcess()
     recs, futs = {}, {}
 
