@@ -508,6 +508,14 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
         prob.give_up, prob.give_up_far = stop, decisive
         prob.opts = replace(opts0, max_iter=min(opts0.max_iter, MAGNITUDE_MAX_ITER))
         sol = prob.solve(w0, fixed={i: target})
+        if (task.regime_runs and not sol.get("success") and sol["status"] != GAVE_UP
+                and np.isfinite(sol["f"]) and 2.0 * float(sol["f"]) + const - ref <= need):
+            # the runs left out are read at this point (below), which fits as well so far:
+            # finished towards continuity, where its χ² is the model's. Measured
+            # (rejuvenation held at 1 µm): 10 iterations left it 2.9 nm off continuity
+            more = prob.solve(sol["w"], fixed={i: target})
+            if np.isfinite(more["f"]):
+                sol = dict(more, iterations=int(sol["iterations"]) + int(more["iterations"]))
     finally:
         prob.give_up, prob.give_up_far, prob.opts = give_up0, far0, opts0
     chi2_m = 2.0 * float(sol["f"]) + const
@@ -558,10 +566,22 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
 
     moved.sort(key=lambda m: (not m["partner"], -weight(m), m["parameter"]))
     partners = [m["parameter"] for m in moved if m["partner"]]
-    return dict(parameter=name, value=float(value), chi2=float(chi2_m), delta_nll=float(dnll),
-                needed_delta_nll=0.5 * need, absorbed=absorbed, better=better, partners=partners,
-                moved=moved[:max(4, len(partners))], stderr_checked=bool(se_m), status=sol["status"],
-                iterations=int(sol["iterations"]), lower_bound=bool(sol["status"] == GAVE_UP and absorbed is False))
+    out = dict(parameter=name, value=float(value), chi2=float(chi2_m), delta_nll=float(dnll),
+               needed_delta_nll=0.5 * need, absorbed=absorbed, better=better, partners=partners,
+               moved=moved[:max(4, len(partners))], stderr_checked=bool(se_m), status=sol["status"],
+               iterations=int(sol["iterations"]), lower_bound=bool(sol["status"] == GAVE_UP and absorbed is False))
+    if task.regime_runs:
+        # The runs left out for their regime, at the held values: with its parameter at
+        # the magnitude and the model's own refitted to the runs fitted, does the effect
+        # make them? (identify.diagnosis._held_evidence). Measured (withheld rejuvenation,
+        # dc = 1 µm; 2 runs fitted, 6 left out): held at 1 µm the runs fitted give χ²
+        # 2745.09 against the current model's 2744.97, and all 6 come out as the data's
+        # (χ² 0, against 58 at the current values); on top of the current values without
+        # the refit, 1 µm had shrunk the fitted runs' largest slips (z 5.5, 7.8).
+        _, g = prob.evaluate(sol["w"])
+        out["continuity_um"] = float(np.abs(g).max()) if g.size else 0.0
+        out["regime"] = _regime(task, {**task.values, **got})
+    return out
 
 
 def _held_stderrs(prob, w: np.ndarray, i: int, evaluated=None) -> dict:

@@ -189,3 +189,27 @@ def test_the_refits_evaluation_is_not_reused_once_the_arcs_were_resized():
     out = _at_magnitude(task, prob, w, 1000.0, {"A": dict(value=0.0236, stderr=0.0035)},
                         evaluated="the refit's evaluation")
     assert out["absorbed"] and out["stderr_checked"] and prob.evaluated_seen is None
+
+
+def test_the_runs_left_out_are_read_at_the_held_values(monkeypatch):
+    """With runs left out for their regime, the check reads them at the values it held
+    (the effect at its magnitude, the model's own parameters as refitted there) and says
+    how far that point is from continuity; without them it reads nothing."""
+    import identify.candidates as cand
+
+    seen = []
+    monkeypatch.setattr(cand, "_regime", lambda task, values: seen.append(dict(values)) or dict(df=1, chi2=0.0))
+    prob = _Problem(1000.5, TO_0018)
+    prob.evaluate = lambda w: (np.zeros(3), np.array([2e-4, -7e-4]))
+    task = CandidateTask(effect="damping", runs=[], law="exponential", values={"A": 0.0236, "c_extra": 0.0, "vc": 1e-6},
+                         free=("A",), extra=("c_extra",), null_chi2=1001.0, magnitude=("c_extra", 2e-5),
+                         regime_runs=["a run left out"])
+    w = prob.theta.to_scaled({"A": 0.0236, "c_extra": 0.0})
+    out = _at_magnitude(task, prob, w, 1000.0, {"A": dict(value=0.0236, stderr=0.0035)})
+    (values,) = seen
+    assert values["c_extra"] == pytest.approx(2e-5) and values["A"] == pytest.approx(0.018)
+    assert values["vc"] == 1e-6  # (the fixed ones as the task has them)
+    assert out["regime"] == dict(df=1, chi2=0.0) and out["continuity_um"] == pytest.approx(7e-4)
+    out = _at_magnitude(CandidateTask(**{**task.__dict__, "regime_runs": []}), _Problem(1000.5, TO_0018), w, 1000.0,
+                        {"A": dict(value=0.0236, stderr=0.0035)})
+    assert "regime" not in out and "continuity_um" not in out and len(seen) == 1

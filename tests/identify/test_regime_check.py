@@ -436,3 +436,49 @@ def test_a_left_out_run_the_final_model_parts_from_is_screened_at_its_values(sma
     assert [r["effect"] for r in screen if r["reproduces_regime"]] == ["aging_logistic"]
     note = next(n for n in res.notes if n.startswith("regime screen (the final model's values"))
     assert "aging_logistic reproduces them" in note and "which candidate to test" in note
+    # drift held at its magnitude and refitted still stick-slips the run: no evidence there
+    drift = next(c for c in res.rounds[-1] if c.get("effect") == "drift")
+    h = drift["held_regime"]
+    assert h["df"] == 1 and h["mismatched"] == 1 and not h["reproduces"]
+    assert h["final_mismatched"] == 1 and h["parameter"] == "drift_rate"
+    assert not any(n.startswith("held at its realistic magnitude") for n in res.notes)  # (listed in the report)
+    assert "drift, held" in res.report()
+    assert [c["effect"] for c in res.to_json()["rounds"][-1] if c["held_regime"]] == ["drift"]
+
+
+def _held_round(dnll=0.06, chi2=0.0, reproduces=True, continuity=2e-4):
+    from scipy import stats
+
+    need = 0.5 * float(stats.chi2.isf(0.01, 1))
+    am = dict(parameter="dc", value=1e-6, delta_nll=dnll, needed_delta_nll=need, continuity_um=continuity,
+              regime=dict(df=6, chi2=chi2, mismatched=[] if reproduces else ["a", "b"], reproduces=reproduces))
+    return [dict(effect=None, ok=True), dict(effect="rejuvenation", ok=True, at_magnitude=am),
+            dict(effect="drift", ok=True, at_magnitude=dict(am, parameter="drift_rate", value=5e-8, delta_nll=40.0,
+                                                             regime=dict(df=6, chi2=50.0, mismatched=["a"],
+                                                                         reproduces=False))),
+            dict(effect="damping", ok=True, at_magnitude=dict(parameter="c_extra", value=2e-5, absorbed=None))]
+
+
+def test_a_candidate_held_at_its_magnitude_that_makes_the_left_out_runs_is_said_not_named():
+    """The evidence of all the runs at one point: held at its magnitude and refitted, the
+    candidate fits the runs fitted as well and makes the left-out ones as the data's,
+    where the final model parts from them (the rejuvenation set's numbers: Δnll +0.06,
+    χ² 58.2 -> 0). Said with its joint Δχ², never named: the magnitude is the library's."""
+    from identify.diagnosis import _held_evidence, _held_note
+    from identify.regime_check import RegimeCheck
+
+    check = RegimeCheck(runs=[dict(name=n, mismatch=n in "abc") for n in "abcdef"], chi2=58.2, df=6, p_value=1e-10)
+    held = _held_evidence(_held_round(), [], check)
+    assert [c["effect"] for c in held] == ["rejuvenation", "drift"]  # (damping: not settled, no reading)
+    h = held[0]["held_regime"]
+    assert h["fits"] and h["reproduces"] and h["final_mismatched"] == 3
+    assert h["joint_delta_chi2"] == pytest.approx(0.12 - 58.2) and h["p_value"] < 1e-12
+    assert not held[1]["held_regime"]["fits"] and held[1]["held_regime"]["joint_delta_chi2"] > 0
+    note = _held_note(held, 6)
+    assert "rejuvenation at dc = 1000 nm fits them as well (Δnll +0.06" in note and "Not named" in note
+    assert "drift" not in note
+    # off continuity (the fitted runs' χ² there is not the model's), or an effect named already: no evidence
+    assert not _held_evidence(_held_round(continuity=0.05), [], check)[0]["held_regime"]["fits"]
+    assert [c["effect"] for c in _held_evidence(_held_round(), ["rejuvenation"], check)] == ["drift"]
+    assert _held_note(_held_evidence(_held_round(reproduces=False, chi2=30.0), [], check), 6) is None
+    assert _held_evidence(_held_round(), [], None) == []
