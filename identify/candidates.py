@@ -337,6 +337,9 @@ def run_candidate(task: CandidateTask) -> dict:
                 out["at_magnitude"] = dict(parameter=task.magnitude[0], value=float(task.magnitude[1]),
                                            absorbed=None, error=f"{type(err).__name__}: {err}")
             out["wall_s"] = time.perf_counter() - t0
+            start = out["at_magnitude"].pop("_start", None)
+            if start is not None:
+                out["w_at_magnitude"], out["ev_M_at_magnitude"] = start["w"], start["ev_M"]
         return out
     except Exception as err:  # one failed candidate never sinks the diagnosis
         return dict(effect=task.effect, ok=False, status=f"failed: {type(err).__name__}: {err}", error=str(err),
@@ -575,12 +578,14 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
         # the magnitude and the model's own refitted to the runs fitted, does the effect
         # make them? (identify.diagnosis._held_evidence). Measured (withheld rejuvenation,
         # dc = 1 µm; 2 runs fitted, 6 left out): held at 1 µm the runs fitted give χ²
-        # 2745.09 against the current model's 2744.97, and all 6 come out as the data's
-        # (χ² 0, against 58 at the current values); on top of the current values without
+        # 2744.73 against the current model's 2744.97, and all 6 come out as the data's
+        # (χ² 0, against 54.3 at the current values); on top of the current values without
         # the refit, 1 µm had shrunk the fitted runs' largest slips (z 5.5, 7.8).
         _, g = prob.evaluate(sol["w"])
         out["continuity_um"] = float(np.abs(g).max()) if g.size else 0.0
         out["regime"] = _regime(task, {**task.values, **got})
+        # (where a profile over the parameter starts: identify.regime_profile; not JSON)
+        out["_start"] = dict(w=np.array(sol["w"], float), ev_M=np.array(prob.ev_M))
     return out
 
 

@@ -99,6 +99,10 @@ def case(eid, scale, quick, workers, seed=0, progress=None):
                 refit_s={c["effect"]: round(c.get("wall_s") or 0.0, 1) for c in res.candidates if c.get("effect")},
                 # no baseline: the candidates that reproduce the runs' regime (pointed to, not named)
                 screen=[r["effect"] for r in res.regime_screen if r["effect"] and r["reproduces_regime"]],
+                # a candidate profiled on every run, the runs left out for their regime included
+                profile={k: (res.regime_profile or {}).get(k) for k in (
+                    "effect", "value", "interval", "p_value", "named", "slip_gap_before_um",
+                    "slip_gap_heldout_um")} if res.regime_profile else None,
                 wall_s=time.perf_counter() - t0)
 
 

@@ -450,7 +450,7 @@ def _held_round(dnll=0.06, chi2=0.0, reproduces=True, continuity=2e-4):
     from scipy import stats
 
     need = 0.5 * float(stats.chi2.isf(0.01, 1))
-    am = dict(parameter="dc", value=1e-6, delta_nll=dnll, needed_delta_nll=need, continuity_um=continuity,
+    am = dict(parameter="dc", value=1e-6, delta_nll=dnll, needed_delta_nll=need, continuity_um=continuity, chi2=2744.73,
               regime=dict(df=6, chi2=chi2, mismatched=[] if reproduces else ["a", "b"], reproduces=reproduces))
     return [dict(effect=None, ok=True), dict(effect="rejuvenation", ok=True, at_magnitude=am),
             dict(effect="drift", ok=True, at_magnitude=dict(am, parameter="drift_rate", value=5e-8, delta_nll=40.0,
@@ -482,3 +482,7 @@ def test_a_candidate_held_at_its_magnitude_that_makes_the_left_out_runs_is_said_
     assert [c["effect"] for c in _held_evidence(_held_round(), ["rejuvenation"], check)] == ["drift"]
     assert _held_note(_held_evidence(_held_round(reproduces=False, chi2=30.0), [], check), 6) is None
     assert _held_evidence(_held_round(), [], None) == []
+    # against the current model's χ² at the values the check read, where given (the round
+    # re-judges Δnll against its own re-solve, which may end above the current model)
+    h = _held_evidence(_held_round(dnll=-4.64), [], check, 2744.97)[0]["held_regime"]
+    assert h["delta_nll"] == pytest.approx(-0.12) and h["joint_delta_chi2"] == pytest.approx(-0.24 - 58.2)
