@@ -186,8 +186,15 @@ class DiagnosisResult:
                    f" ({ho['refitted_folds']} fold(s) refitted: the linear leave-out step did not hold)"
                    if ho.get("refitted_folds") else "")
             L.append(f"    gap (held out)     = {ho.get('gap_um', float('nan')) * 1e3:.1f} nm before{why}")
-        L.append(f"    gap after          = {self.final['gap_um'] * 1e3:.1f} nm fitted, "
-                 f"{self.final['heldout_gap_um'] * 1e3:.1f} nm held out ({self.options.folds} folds)")
+        if "regime_slip_gap_heldout_um" in self.final:  # named by its profile on every run
+            f = self.final
+            L.append(f"    gap after          = {f['gap_um'] * 1e3:.1f} nm fitted; the runs left out for their "
+                     f"regime, largest slips: {f['regime_slip_gap_before_um'] * 1e3:.0f} nm -> "
+                     f"{f['regime_slip_gap_after_um'] * 1e3:.0f} nm, {f['regime_slip_gap_heldout_um'] * 1e3:.0f} nm "
+                     "held out (each run predicted from the profile without it)")
+        else:
+            L.append(f"    gap after          = {self.final['gap_um'] * 1e3:.1f} nm fitted, "
+                     f"{self.final['heldout_gap_um'] * 1e3:.1f} nm held out ({self.options.folds} folds)")
         L.append(f"    wall time          = {self.timing['total_s']:.1f} s ({self.timing['refits']} refits, "
                  f"{self.options.workers if not self.options.dask else 'dask'} worker(s))")
         L.append("[[Where (baseline), ranked]]")
@@ -701,9 +708,9 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
     )
 
 
-SCREEN_AT_FINAL = ("the final model's values", "the runs fitted gave no refit that could name it, and the runs "
-                   "left out for their regime are in no likelihood, so this says which candidate to test (with "
-                   "runs like the left-out ones, fitted), not that it is the cause")
+SCREEN_AT_FINAL = ("the final model's values", "nothing is refitted here (the library's magnitude on the final "
+                   "values), so this says which candidate to test, not that it is the cause; the check at each "
+                   "candidate's magnitude, refitted, and a profile weigh it on every run")
 
 
 def _final_screen(current: dict, regime_runs: list, effects: list, opts: "DiagnosisOptions", say,
@@ -786,7 +793,9 @@ def _held_evidence(rnd: list, effects: list, check, current_chi2: float | None =
 def _held_note(held: list, n_runs: int) -> str | None:
     """The sentence of :func:`_held_evidence`: which candidates, held at their realistic
     magnitude and refitted, fit the runs fitted as well and make the runs left out as the
-    data's; None where none does (the report's regime screen lists each reading)."""
+    data's — not named from there (one of them alone is profiled next,
+    :func:`_profile_held`); None where none does (the report's regime screen lists each
+    reading)."""
     yes = [c for c in held if c["held_regime"]["fits"] and c["held_regime"]["reproduces"]]
     if not yes:
         return None
@@ -802,10 +811,9 @@ def _held_note(held: list, n_runs: int) -> str | None:
                 f"{h['joint_delta_chi2']:.1f} (p = {h['p_value']:.2g})")
 
     names = ", ".join(c["effect"] for c in yes)
-    tail = (f". Not named: {'its magnitude is' if len(yes) == 1 else 'their magnitudes are'} the library's, not "
-            "estimated (the runs fitted cannot tell it from the null, and the runs left out enter no likelihood)")
-    if len(yes) > 1:
-        tail += f"; nor can these runs tell {names} apart"
+    tail = (f". Not named from here: {'its magnitude is' if len(yes) == 1 else 'their magnitudes are'} the "
+            "library's, not estimated")
+    tail += f"; nor can these runs tell {names} apart" if len(yes) > 1 else " (its profile follows)"
     return head + "; ".join(one(c) for c in yes) + tail
 
 

@@ -165,3 +165,4 @@ def test_rejuvenation_at_its_magnitude_is_named_by_the_runs_left_out():
     assert prof["slip_gap_heldout_um"] < prof["slip_gap_before_um"]
     assert res.where_final[0].feature != "regime" or res.where_final[0].p_value > 0.01
     assert json.loads(json.dumps(_jsonable(res.to_json())))["regime_profile"]["named"]
+    assert "the runs left out for their regime, largest slips" in res.report()
