@@ -5,7 +5,7 @@ Where the final model parts from runs the fit left out for their regime, those r
 evidence no refit sees: they enter no likelihood. Measured (the withheld rejuvenation
 set, memory length dc = 1 µm against the baseline's 20 nm; 2 runs fitted, 6 left out):
 the 2 runs fit at the noise with either dc — held at 1 µm and refitted they give χ²
-2744.7 against the current model's 2754.0 as the diagnosis measures it — and only the
+2744.7 against the current model's 2745.0 — and only the
 left-out runs tell the two apart (χ² 54.3 at the final values, 0 at 1 µm). A refit with
 dc free ended in a local solution near its null (χ² 8108).
 

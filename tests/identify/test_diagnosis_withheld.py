@@ -149,8 +149,8 @@ def test_rejuvenation_at_its_magnitude_is_named_by_the_runs_left_out():
     rejuvenation alone; held at 1 µm and refitted it fits the two as well and makes the
     six as the data's; its profile on every run names it: dc's 95 % interval between
     562 nm and 1.78 µm, joint χ² 2799 -> 2745, no own move making every run, the six's
-    largest-slip gap 231 nm -> 0 held out (measured at this commit's parent + profile:
-    `adequate`, ~7 min with a slow test beside it on two cores)."""
+    largest-slip gap 231 nm -> 0 held out (measured at 2b14f43: `adequate`, 364 s beside
+    another slow test on two cores)."""
     traces = withheld_dataset("rejuvenation", conditions=CONDITIONS, base={"A": 0.015})
     res = diagnose(traces, fit_options=BASE, options=DiagnosisOptions(workers=2))
     current, *screen = res.regime_screen

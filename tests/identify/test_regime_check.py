@@ -462,8 +462,9 @@ def _held_round(dnll=0.06, chi2=0.0, reproduces=True, continuity=2e-4):
 def test_a_candidate_held_at_its_magnitude_that_makes_the_left_out_runs_is_said_not_named():
     """The evidence of all the runs at one point: held at its magnitude and refitted, the
     candidate fits the runs fitted as well and makes the left-out ones as the data's,
-    where the final model parts from them (the rejuvenation set's numbers: Δnll +0.06,
-    χ² 58.2 -> 0). Said with its joint Δχ², never named: the magnitude is the library's."""
+    where the final model parts from them (stand-in numbers near the rejuvenation set's).
+    Said with its joint Δχ², not named from there: the magnitude is the library's (a
+    profile decides, identify.regime_profile)."""
     from identify.diagnosis import _held_evidence, _held_note
     from identify.regime_check import RegimeCheck
 
