@@ -376,13 +376,18 @@ def _int_arg(text: str, flag: str) -> int:
 
 # ----------------------------------------------------------------------------- bench
 def _add_bench(sub):
-    p = sub.add_parser("bench", help="speed benchmark of the simulator against the smooth route",
+    p = sub.add_parser("bench", help="speed benchmark of the simulator against the smooth route; "
+                       "'bench derivatives': the arcs' Jacobians against tight differences",
                        add_help=False, prefix_chars="\0")
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=_cmd_bench)
 
 
 def _cmd_bench(args) -> int:
+    if args.rest and args.rest[0] == "derivatives":
+        from .derivative_check import main as derivatives_main
+
+        return int(derivatives_main(args.rest[1:]) or 0)
     from .bench import main as bench_main
 
     return int(bench_main(args.rest) or 0)

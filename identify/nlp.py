@@ -261,8 +261,9 @@ class _ArcCallback(ca.Callback):
     matrix: the solver asks for them at the same point from several Functions."""
 
     def __init__(self, name: str, arcs: ArcFunctions, n_events: int, threads: int, jac: bool,
-                 counter: dict, rows=None, scheme: str = "central"):
+                 counter: dict, rows=None, scheme: str = "central", jac_callback=None):
         ca.Callback.__init__(self)
+        self.jac_callback = jac_callback  # (values only) the Jacobian callback: see has_jacobian
         self.arcs, self.E, self.threads, self.jac = arcs, n_events, threads, jac
         self.counter, self.rows, self.scheme, self.rel_step, self.share = counter, rows, scheme, None, None
         self.own = None  # with ``share``: arcs that keep their own differences (bool per arc)
@@ -281,6 +282,22 @@ class _ArcCallback(ca.Callback):
 
     def get_sparsity_out(self, i):
         return ca.Sparsity.dense(2, self.arcs.n_in * self.E) if self.jac else ca.Sparsity.dense(5, self.E)
+
+    def has_jacobian(self):
+        # the values' Jacobian is the Jacobian callback's, laid out per output entry:
+        # solvers that differentiate the NLP themselves (Ipopt's Lagrangian gradient)
+        # see the same arc derivatives as the explicit Jr, Jg
+        return not self.jac and getattr(self, "jac_callback", None) is not None
+
+    def get_jacobian(self, name, inames, onames, opts):
+        E, n_in = self.E, self.arcs.n_in
+        A = ca.MX.sym("A", n_in, E)
+        out = ca.MX.sym("Y", 5, E)
+        JA = ca.MX(_blockdiag_sparsity(2, n_in, E), ca.vec(self.jac_callback(A)))  # (2E × n_in·E)
+        # rows 2e + r of JA are entries 5e + r of vec(Y)
+        rows = (5 * np.arange(E)[:, None] + np.arange(2)[None, :]).ravel()
+        S = ca.DM(ca.Sparsity.triplet(5 * E, 2 * E, rows.tolist(), list(range(2 * E))), 1.0)
+        return ca.Function(name, [A, out], [ca.mtimes(S, JA)], inames, onames, opts)
 
     def eval(self, arg):
         A = np.array(arg[0])
@@ -721,9 +738,10 @@ class Problem:
             topo = "topo_amp" in self.theta.names or self.values.get("topo_amp", 0.0) != 0.0
             rows = ([ix["x0_um"]] if topo else []) + [ix["e0_um"], ix["state0"]] \
                 + [ix[n] for n in self.theta.names if n in ix]
-            self._cb_val = _ArcCallback("arcs", self.arcs, E, opts.threads, False, self.counter)
             self._cb_jac = _ArcCallback("arc_jacs", self.arcs, E, opts.threads, True, self.counter, rows,
                                         scheme=opts.arc_jacobian)
+            self._cb_val = _ArcCallback("arcs", self.arcs, E, opts.threads, False, self.counter,
+                                        jac_callback=self._cb_jac)
             Y = self._cb_val(A)[:2, :]
             JA = ca.MX(_blockdiag_sparsity(2, self.arcs.n_in, E), ca.vec(self._cb_jac(A)))
             dY_dw = ca.mtimes(JA, ca.jacobian(ca.vec(A), w))
@@ -770,6 +788,12 @@ class Problem:
 
     def residuals(self, w) -> np.ndarray:
         return self.evaluate(w)[0]
+
+    def arc_inputs(self, w: np.ndarray) -> np.ndarray:
+        """The arcs' input matrix at w (n_in × E, :class:`identify.arcs.ArcFunctions` order)."""
+        if not self.E:
+            return np.zeros((self.arcs.n_in, 0))
+        return np.array(self._arc_inputs(w))
 
     def arc_outputs(self, w: np.ndarray) -> np.ndarray:
         if not self.E:

@@ -1,0 +1,305 @@
+"""Exact derivatives of the slip arcs: IDAS on the symbolic slip model, the stop time
+refined by a CasADi rootfinder (DESIGN.md §2).
+
+An arc (:mod:`identify.arcs`) starts at a trigger step with the block at rest and ends
+where the block stops. The event-located simulation (the Rosenbrock arc) tells where
+the stop is: its time T*, the step interval j it falls in (or that the block still
+moves at the arc's horizon) and whether the stick threshold was armed. Here the same
+slip is integrated again with IDAS, forward sensitivities under error control:
+
+* j whole step intervals at fixed times, the puller advanced by one step at each node
+  (never ``floor(fp·t)`` inside the ODE: its derivative is zero and the integrator would
+  not see the jump);
+* then the last, partial interval of length τ, τ* the root of v(τ) − v_stop found by a
+  Newton ``rootfinder`` seeded with the simulated stop. CasADi differentiates through τ*
+  by the implicit function theorem, so the slip length and the contact state carry the
+  stop time's dependence on every input, exactly up to the integrator's tolerance;
+* after the stop the contact ages in closed form (the law's ``rest``) to the horizon.
+
+An arc whose end is a knife edge (:func:`grazing_flags`) has outputs that jump with its
+inputs: no method gives it a derivative. Such arcs still get the derivative of the
+branch they are on, and are flagged, so that the mode-sequence decision (not the
+solver's linearisation) deals with them.
+
+One Function per structure (whole intervals j, still moving or stopped, the inputs
+differentiated) is built once and mapped over every arc that shares it.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from .model import LENGTH_UNIT, SPEED_UNIT, TIME_UNIT, Model, slip_dae
+
+__all__ = ["ExactArcs", "exact_arcs", "grazing_flags", "GRAZING_REASONS", "EXACT_RELTOL", "EXACT_ABSTOL"]
+
+# IDAS tolerances: relative, and absolute per state (x µm, v mm/s, scaled contact state).
+# The slip length's dependence on the start of the slip is a small difference of large
+# terms (the creep nucleation's timing moves with the start, the stop time takes most of
+# it back), so the sensitivities need tolerances well below what the values need
+# (docs/engineering-notes.md, "Exact arc derivatives", has the convergence measured).
+# IDAS is given the smallest as one scalar: with per-state tolerances (abstolv) its
+# forward sensitivities stopped at t = 0 ("initial ewt component = 0.0 illegal").
+EXACT_RELTOL = 1e-10
+EXACT_ABSTOL = (1e-10, 1e-10, 1e-10)
+# The stop-time Newton: converged when |v − v_stop| is below ROOT_ABSTOL (mm/s; the
+# integrator's own accuracy in v near a stop) or the Newton step below ROOT_STEP (ms).
+# Started from the event-located stop, it needs 1-3 iterations; no line search (the
+# integrator's noise in v, not the model, decides the last digits there).
+ROOT_ABSTOL = 1e-6
+ROOT_STEP = 1e-9
+# What makes an arc grazing (fractions): its stop within GRAZE_NODE of a step period of
+# a step node (a block that nearly stopped is pushed on, or not, by the next step); its
+# peak speed within GRAZE_ARM of the stick threshold (armed or not); the spring force at
+# the stop within GRAZE_HOLD of what friction can hold there (stays, or slips again).
+GRAZE_NODE = 1e-3
+GRAZE_ARM = 0.02
+GRAZE_HOLD = 1e-3
+GRAZING_REASONS = ("stop at a step node", "peak speed at the stick threshold", "force at the holding limit")
+
+
+@dataclass(frozen=True)
+class _Structure:
+    whole: int  # whole step intervals before the last one
+    stopped: bool  # False: still moving at the horizon (no stop to find)
+    rows: tuple  # the inputs differentiated
+
+
+class ExactArcs:
+    """Exact arc Jacobians for one model (see the module docstring).
+
+    Parameters
+    ----------
+    model : Model
+        The friction model (the same one the event-located arcs integrate).
+    input_names : tuple of str
+        The arcs' inputs, in :class:`identify.arcs.ArcFunctions` order.
+    reltol : float
+        IDAS relative tolerance.
+    abstol : tuple of float
+        IDAS absolute tolerances per state (x µm, v mm/s, scaled contact state).
+    """
+
+    def __init__(self, model: Model, input_names: tuple, reltol: float = EXACT_RELTOL,
+                 abstol: tuple = EXACT_ABSTOL):
+        self.model, self.law = model, model.law
+        self.input_names = tuple(input_names)
+        self.n_in = len(self.input_names)
+        self.index = {n: i for i, n in enumerate(self.input_names)}
+        self.param_names = tuple(self.input_names[3:-4])
+        self.reltol, self.abstol = float(reltol), tuple(float(a) for a in abstol)
+        self._functions: dict = {}
+        self.n_failed = 0  # arcs whose IDAS integration or stop refinement failed
+
+    # ---------------------------------------------------------------- symbolic
+    @functools.cached_property
+    def _segment(self) -> ca.Function:
+        """(X0, xp_um, p) -> X at the end of one segment of the slip ODE (x, v, state),
+        the segment's length the last entry of p (ms)."""
+        ode, x3, u, p = _forward_slip_ode(self.model)
+        opts = dict(reltol=self.reltol, abstol=min(self.abstol),
+                    fsens_err_con=True, calc_ic=True, max_num_steps=200_000,
+                    disable_internal_warnings=True)
+        integ = ca.integrator("slip_idas", "idas", dict(x=x3, u=u, p=p, ode=ode), 0.0, 1.0, opts)
+        X0, xp, pp = ca.MX.sym("X0", 3), ca.MX.sym("xp"), ca.MX.sym("p", p.numel())
+        return ca.Function("segment", [X0, xp, pp], [integ(x0=X0, u=xp, p=pp)["xf"]],
+                           ["X0", "xp_um", "p"], ["Xf"])
+
+    def _build(self, s: _Structure) -> ca.Function:
+        """(a_var, a, τ0, v_stop) -> (y = [slip µm, state at horizon, stop ms], dy[:2]/da_var)."""
+        ix, law, seg = self.index, self.law, self._segment
+        a_all = ca.MX.sym("a", self.n_in)
+        a_var = ca.MX.sym("a_var", len(s.rows))
+        sel = np.zeros((self.n_in, len(s.rows)))
+        sel[list(s.rows), range(len(s.rows))] = 1.0
+        keep = np.ones(self.n_in)
+        keep[list(s.rows)] = 0.0
+        a = a_all * ca.DM(keep) + ca.mtimes(ca.DM(sel), a_var)
+        n_m = len(self.param_names)
+        pm = a[3 : 3 + n_m]
+        k, nb, fp, M = a[ix["k"]], a[ix["Nb"]], a[ix["fp"]], a[ix["M"]]
+        step_um = a[ix["step_size"]] * a[ix["step_scale"]] / LENGTH_UNIT
+        period_ms = 1 / fp / TIME_UNIT
+
+        def pv(duration_ms):
+            return ca.vertcat(pm, k, nb, 1.0, duration_ms)
+
+        X = ca.vertcat(a[0], 0, a[2] / law.state_scale)
+        u0 = a[0] + a[1]
+        if s.whole:
+            chain = seg.mapaccum("whole", s.whole)
+            nodes = u0 + step_um * ca.DM(np.arange(s.whole)).T
+            X = chain(X, nodes, ca.repmat(pv(period_ms), 1, s.whole))
+        tau0, v_stop = ca.MX.sym("tau0"), ca.MX.sym("v_stop")
+        u_last = u0 + s.whole * step_um
+        if s.stopped:
+            # G(τ; what the stop depends on) = v(τ) − v_stop, on free symbols: the
+            # rootfinder's parameters are then the arc's own expressions
+            tau = ca.MX.sym("tau")
+            Xs_, u_, p_ = ca.MX.sym("X", 3), ca.MX.sym("u"), ca.MX.sym("p", pv(0).numel())
+            vs_ = ca.MX.sym("vs")
+            pin = ca.vertcat(Xs_, u_, p_, vs_)
+            pr = ca.vertcat(p_[:-1], tau)
+            G = ca.Function("stop", [tau, pin], [seg(Xs_, u_, pr)[1] - vs_])
+            rf = ca.rootfinder("stop_time", "newton", G, dict(
+                abstol=ROOT_ABSTOL, abstolStep=ROOT_STEP, max_iter=30, line_search=False,
+                error_on_fail=True))
+            tau_star = rf(tau0, ca.vertcat(X, u_last, pv(0), v_stop))
+            Xe = seg(X, u_last, pv(tau_star))
+            stop_ms = s.whole * period_ms + tau_star
+        else:
+            Xe = X
+            stop_ms = s.whole * period_ms
+        rest_s = (M * period_ms - stop_ms) * TIME_UNIT
+        P = {n: pm[i] for i, n in enumerate(self.param_names)}
+        z_end = law.rest(Xe[2] * law.state_scale, rest_s, P, ops=ca) if s.stopped else Xe[2] * law.state_scale
+        y = ca.vertcat(Xe[0] - a[0], z_end, stop_ms)
+        J = ca.jacobian(y[:2], a_var)
+        return ca.Function("arc_exact", [a_var, a_all, tau0, v_stop], [y, J],
+                           ["a_var", "a", "tau0", "v_stop"], ["y", "dy_da"])
+
+    def function(self, whole: int, stopped: bool, rows: tuple) -> ca.Function:
+        """The cached Function of one arc structure."""
+        s = _Structure(int(whole), bool(stopped), tuple(int(r) for r in rows))
+        f = self._functions.get(s)
+        if f is None:
+            f = self._functions[s] = self._build(s)
+        return f
+
+    # ---------------------------------------------------------------- numeric
+    def structure(self, A: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per arc, from its event-located simulation ``Y``: whole step intervals before
+        the stop, whether it stopped, and its stop speed (mm/s)."""
+        ix = self.index
+        period_ms = 1 / A[ix["fp"]] / TIME_UNIT
+        stopped = Y[4] < 0.5
+        whole = np.where(stopped, np.floor(Y[2] / period_ms), A[ix["M"]])
+        whole = np.clip(np.nan_to_num(whole, nan=0.0), 0, A[ix["M"]]).astype(int)
+        v_stick = A[ix["v_stick"]]
+        armed = (v_stick > 0) & (Y[3] > v_stick)
+        v_stop = np.where(armed, v_stick / SPEED_UNIT, 0.0)
+        return whole, stopped, v_stop
+
+    def jacobian(self, A: np.ndarray, Y: np.ndarray, rows, threads: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Exact d(slip, state at horizon)/d(inputs ``rows``) of every arc (columns of A),
+        seeded by its event-located outputs ``Y`` (5 × n, :meth:`ArcFunctions.evaluate`).
+
+        Returns (y, J, ok): y (3 × n: slip µm, state at horizon, stop ms, from the IDAS
+        integration), J (2 × n_in × n, zero in the rows not asked for) and, per arc,
+        whether IDAS and the stop refinement succeeded (else y and J are NaN there)."""
+        rows = tuple(int(r) for r in rows)
+        n = A.shape[1]
+        y = np.full((3, n), np.nan)
+        J = np.zeros((2, self.n_in, n))
+        ok = np.zeros(n, bool)
+        if not n:
+            return y, J, ok
+        whole, stopped, v_stop = self.structure(A, Y)
+        finite = np.all(np.isfinite(A), axis=0) & np.all(np.isfinite(Y[:5]), axis=0)
+        keys = np.stack([whole, stopped.astype(int)])
+        for key in np.unique(keys[:, finite], axis=1).T:
+            cols = np.nonzero(finite & (whole == key[0]) & (stopped == bool(key[1])))[0]
+            f = self.function(int(key[0]), bool(key[1]), rows)
+            period_ms = 1 / A[self.index["fp"], cols] / TIME_UNIT
+            tau0 = Y[2, cols] - key[0] * period_ms if key[1] else np.zeros(cols.size)
+            args = (A[list(rows)][:, cols], A[:, cols], tau0, v_stop[cols])
+            try:
+                fm = f.map(cols.size, "thread", threads) if threads > 1 else f.map(cols.size)
+                yy, jj = fm(*args)
+                yy, jj = np.array(yy), np.array(jj)
+                done = np.ones(cols.size, bool)
+            except RuntimeError:
+                # one arc the integrator or the Newton cannot do must not sink the others
+                yy, jj = np.full((3, cols.size), np.nan), np.full((2, len(rows) * cols.size), np.nan)
+                done = np.zeros(cols.size, bool)
+                for c in range(cols.size):
+                    try:
+                        y1, j1 = f(*(np.asarray(x)[..., c] if np.ndim(x) > 1 else np.asarray(x)[c] for x in args))
+                        yy[:, c] = np.array(y1).ravel()
+                        jj[:, c * len(rows):(c + 1) * len(rows)] = np.array(j1)
+                        done[c] = True
+                    except RuntimeError:
+                        self.n_failed += 1
+            y[:, cols] = yy
+            jr = jj.reshape(2, cols.size, len(rows)).transpose(0, 2, 1)  # (2, rows, arcs)
+            for k_, r in enumerate(rows):
+                J[:, r, cols] = jr[:, k_, :]
+            ok[cols] = done & np.all(np.isfinite(yy), axis=0)
+        J[:, :, ~ok] = np.nan
+        return y, J, ok
+
+
+def grazing_flags(model: Model, A: np.ndarray, Y: np.ndarray, index: dict) -> np.ndarray:
+    """Per arc, a bit mask of :data:`GRAZING_REASONS` (0: not grazing).
+
+    Bit 0: the stop lies within ``GRAZE_NODE`` of a step period of a step node after
+    the trigger. Bit 1: under the stick option, the peak speed lies within ``GRAZE_ARM``
+    of the threshold (arming is a yes/no decision). Bit 2: at the stop the spring force
+    lies within ``GRAZE_HOLD`` of what the contact can hold (the block stays or slips on)."""
+    n = A.shape[1]
+    flags = np.zeros(n, int)
+    if not n:
+        return flags
+    ix = index
+    fp = A[ix["fp"]]
+    period_ms = 1 / fp / TIME_UNIT
+    stopped = Y[4] < 0.5
+    with np.errstate(invalid="ignore", divide="ignore"):
+        phase = Y[2] / period_ms
+        near_node = stopped & (phase > 0.5) & (np.abs(phase - np.round(phase)) < GRAZE_NODE)
+        v_stick = A[ix["v_stick"]]
+        near_arm = (v_stick > 0) & (np.abs(Y[3] / np.where(v_stick > 0, v_stick, 1.0) - 1) < GRAZE_ARM)
+        P = {n_: A[ix[n_]] for n_ in ix if n_ not in ("x0_um", "e0_um", "state0", "fp", "M")}
+        step_m = A[ix["step_size"]] * A[ix["step_scale"]]
+        x_stop_m = (A[0] + Y[0]) * LENGTH_UNIT
+        xp_m = (A[0] + A[1]) * LENGTH_UNIT + step_m * np.floor(phase)
+        force = model.spring_force(xp_m - x_stop_m, P)
+        # the state at the stop: the end state aged back is not available; the capacity
+        # at the horizon bounds it from above (aging only raises it), so use the end state
+        state_stop = Y[1]
+        cap = model.hold_coefficient(state_stop, x_stop_m, P) * model.normal_load(P)
+        near_hold = stopped & (np.abs(np.abs(force) / cap - 1) < GRAZE_HOLD)
+    flags |= near_node.astype(int)
+    flags |= near_arm.astype(int) << 1
+    flags |= near_hold.astype(int) << 2
+    return flags
+
+
+def _forward_slip_ode(model: Model):
+    """The slip ODE of :func:`identify.model.slip_dae` for a block sliding forward
+    (direction +1, speed = v), time-scaled to [0, 1] over the ``duration`` parameter.
+
+    The same equations as the simulator's while v ≥ 0, which holds on an arc up to its
+    stop. Written with v instead of |v| and sgn(v) so that their derivative at v = 0,
+    where every slip starts, is the one-sided one (1/vc for the rate term) rather than
+    the 0 that automatic differentiation gives |v| there: with it, IDAS's Newton matrix
+    and the sensitivity equations miss the rate term's stiffness at the start of a slip
+    and fail there at tight tolerances."""
+    d = slip_dae(model)
+    p, u = d["p"], d["u"]
+    P = {n: p[i] for i, n in enumerate(d["names"])}
+    law = model.law
+    x3 = ca.SX.sym("X", 3)
+    x = x3[0] * LENGTH_UNIT
+    v = x3[1] * SPEED_UNIT
+    state = x3[2] * law.state_scale
+    e = u * LENGTH_UNIT - x
+    N = model.normal_load(P)
+    static = model.static_coefficient(state, x, P, ops=ca)
+    rate = P["A"] * ca.log1p(v / P["vc"])
+    force = model.spring_force(e, P, ops=ca) - (static + rate) * N - model.damping(P) * v
+    T = P["duration"] * TIME_UNIT
+    ode = T * ca.vertcat(v / LENGTH_UNIT, force / P["mb"] / SPEED_UNIT,
+                         law.rate(state, v, P, ops=ca) / law.state_scale)
+    return ode, x3, u, p
+
+
+@functools.lru_cache(maxsize=None)
+def exact_arcs(model: Model, input_names: tuple, reltol: float = EXACT_RELTOL,
+               abstol: tuple = EXACT_ABSTOL) -> ExactArcs:
+    """Cached :class:`ExactArcs` for ``model``."""
+    return ExactArcs(model, input_names, reltol, abstol)
