@@ -21,8 +21,8 @@ from __future__ import annotations
 import argparse
 import time
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
@@ -32,7 +32,7 @@ from .laws import get_law
 from .model import Model
 from .params import parameter_set
 
-__all__ = ["ArcCase", "arc_case", "compare", "main", "DEFAULT_ROWS"]
+__all__ = ["DEFAULT_ROWS", "ArcCase", "arc_case", "compare", "main"]
 
 DEFAULT_ROWS = ("e0_um", "state0", "mu_max", "mu_min", "tau", "A")
 REFERENCE_TOL = 1e-10  # tolerance of the reference integrations
@@ -183,9 +183,10 @@ def default_cases(data: str | None, travel_um: float = 10.0) -> list[ArcCase]:
 
 
 def format_result(r: dict) -> str:
-    lines = [f"{r['case']}: {r['arcs']} arcs, {r['grazing']} grazing "
-             f"({', '.join(f'{n} {k}' for k, n in r['grazing_by_reason'].items() if n) or 'none'}), "
-             f"{r['exact_failed']} the exact route could not do; inputs {', '.join(r['rows'])}",
+    reasons = ", ".join(f"{n} {k}" for k, n in r["grazing_by_reason"].items() if n) or "none"
+    head = (f"{r['case']}: {r['arcs']} arcs, {r['grazing']} grazing ({reasons}), "
+            f"{r['exact_failed']} the exact route could not do; inputs {', '.join(r['rows'])}")
+    lines = [head,
              f"  {'Jacobian':<28s} {'max rel err':>12s} {'max abs err':>12s} {'agree':>7s} {'ms/arc':>8s}"]
     for name, label in (("exact", f"exact (IDAS {r['reltol']:g})"), ("forward", "forward differences"),
                         ("central", "central differences")):

@@ -35,7 +35,7 @@ import numpy as np
 
 from .model import LENGTH_UNIT, SPEED_UNIT, TIME_UNIT, Model, slip_dae
 
-__all__ = ["ExactArcs", "exact_arcs", "grazing_flags", "GRAZING_REASONS", "EXACT_RELTOL", "EXACT_ABSTOL"]
+__all__ = ["EXACT_ABSTOL", "EXACT_RELTOL", "GRAZING_REASONS", "ExactArcs", "exact_arcs", "grazing_flags"]
 
 # IDAS tolerances: relative, and absolute per state (x µm, v mm/s, scaled contact state).
 # The slip length's dependence on the start of the slip is a small difference of large
@@ -298,7 +298,7 @@ def _forward_slip_ode(model: Model):
     return ode, x3, u, p
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def exact_arcs(model: Model, input_names: tuple, reltol: float = EXACT_RELTOL,
                abstol: tuple = EXACT_ABSTOL) -> ExactArcs:
     """Cached :class:`ExactArcs` for ``model``."""

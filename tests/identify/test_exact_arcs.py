@@ -10,6 +10,7 @@ import pytest
 from identify import SimulationOptions, simulate
 from identify.arcs import arc_functions
 from identify.derivative_check import arc_case
+from identify.events import extract_events
 from identify.exact_arcs import ExactArcs, grazing_flags
 from identify.fit import FitOptions
 from identify.laws import get_law
@@ -17,7 +18,6 @@ from identify.model import Model
 from identify.nlp import Problem
 from identify.params import parameter_set
 from identify.rundata import _run_data
-from identify.events import extract_events
 
 V_STICK = 1e-5
 MODEL = Model(get_law("exponential"))
