@@ -78,9 +78,11 @@ class FitOptions:
         Largest number of puller steps one slip arc may span.
     arc_reltol, arc_abstol : float
         Tolerances of the arcs (scaled states); why the defaults: ``identify.arcs.ARC_RELTOL``.
-    arc_jacobian : {"forward", "central"}
-        Finite differences of the arcs while the solver iterates (``forward``, default:
-        one integration per input instead of two); the covariance always uses central
+    arc_jacobian : {"forward", "central", "exact"}
+        The arcs' derivatives while the solver iterates: finite differences (``forward``,
+        default: one integration per input instead of two; ``central``), or ``exact``:
+        IDAS sensitivities through the stop time (:mod:`identify.exact_arcs`), 30-40×
+        the cost per arc and not shared among arcs. The covariance always uses central
         differences.
     share_arc_jacobian : bool
         Let slips whose inputs nearly agree share one slip's forward differences
@@ -215,8 +217,8 @@ class FitOptions:
             raise ValueError(f"multistart = {self.multistart!r}: must be >= 0")
         if self.sequence_trials < 0:
             raise ValueError(f"sequence_trials = {self.sequence_trials!r}: must be >= 0")
-        if self.arc_jacobian not in ("forward", "central"):
-            raise ValueError(f"arc_jacobian = {self.arc_jacobian!r}: choose 'forward' or 'central'")
+        if self.arc_jacobian not in ("forward", "central", "exact"):
+            raise ValueError(f"arc_jacobian = {self.arc_jacobian!r}: choose 'forward', 'central' or 'exact'")
         if self.arc_start not in ("aged", "mid"):
             raise ValueError(f"arc_start = {self.arc_start!r}: choose 'aged' or 'mid'")
         if self.trigger not in ("uniform", "interval"):

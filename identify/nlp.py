@@ -55,6 +55,7 @@ import scipy.sparse as sp
 
 from . import kkt
 from .arcs import ArcFunctions, arc_functions
+from .exact_arcs import exact_arcs
 from .model import LENGTH_UNIT, Model
 from .params import SPECS
 
@@ -283,6 +284,20 @@ class _ArcCallback(ca.Callback):
     def get_sparsity_out(self, i):
         return ca.Sparsity.dense(2, self.arcs.n_in * self.E) if self.jac else ca.Sparsity.dense(5, self.E)
 
+    def _exact(self, A: np.ndarray) -> np.ndarray:
+        """Exact arc Jacobians (:mod:`identify.exact_arcs`), in the layout of
+        :meth:`ArcFunctions.evaluate_jacobian`; an arc the exact route cannot do (its
+        IDAS run or stop refinement failed) takes its central differences instead."""
+        arcs = self.arcs
+        rows = list(range(arcs.n_in)) if self.rows is None else list(self.rows)
+        Y = arcs.evaluate(A, self.threads)  # (remembered: the solver asked for the values first)
+        _, J, ok = exact_arcs(arcs.model, arcs.input_names).jacobian(A, Y, rows, self.threads)
+        if not ok.all():
+            _, Jfd = arcs.evaluate_jacobian(A[:, ~ok], self.threads, rows=rows, scheme="central",
+                                            rel_step=SOLVE_REL_STEP)
+            J[:, :, ~ok] = Jfd.reshape(2, int((~ok).sum()), arcs.n_in).transpose(0, 2, 1)
+        return J.transpose(0, 2, 1).reshape(2, A.shape[1] * arcs.n_in)
+
     def has_jacobian(self):
         # the values' Jacobian is the Jacobian callback's, laid out per output entry:
         # solvers that differentiate the NLP themselves (Ipopt's Lagrangian gradient)
@@ -304,7 +319,11 @@ class _ArcCallback(ca.Callback):
         key = A.tobytes()
         if key != self._key:
             t0 = time.perf_counter()
-            if self.jac:
+            if self.jac and self.scheme == "exact":
+                self._val = self._exact(A)
+                self.counter["jac_s"] += time.perf_counter() - t0
+                self.counter["jac_calls"] += 1
+            elif self.jac:
                 self._val = self.arcs.evaluate_jacobian(A, self.threads, rows=self.rows, scheme=self.scheme,
                                                         rel_step=self.rel_step, share=self.share,
                                                         own=self.own)[1]
