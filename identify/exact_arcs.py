@@ -225,9 +225,8 @@ class ExactArcs:
                     except RuntimeError:
                         self.n_failed += 1
             y[:, cols] = yy
-            jr = jj.reshape(2, cols.size, len(rows)).transpose(0, 2, 1)  # (2, rows, arcs)
-            for k_, r in enumerate(rows):
-                J[:, r, cols] = jr[:, k_, :]
+            # (the map puts each arc's 2 × rows block side by side)
+            J[:, np.array(rows)[:, None], cols[None, :]] = jj.reshape(2, cols.size, len(rows)).transpose(0, 2, 1)
             ok[cols] = done & np.all(np.isfinite(yy), axis=0)
         J[:, :, ~ok] = np.nan
         return y, J, ok
