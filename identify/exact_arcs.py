@@ -27,15 +27,21 @@ differentiated) is built once and mapped over every arc that shares it.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import io
+import logging
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
+from .compiled import _stderr_lock
 from .model import LENGTH_UNIT, SPEED_UNIT, TIME_UNIT, Model, slip_dae
 
 __all__ = ["EXACT_ABSTOL", "EXACT_RELTOL", "GRAZING_REASONS", "ExactArcs", "exact_arcs", "grazing_flags"]
+
+log = logging.getLogger(__name__)
 
 # IDAS tolerances: relative, and absolute per state (x µm, v mm/s, scaled contact state).
 # The slip length's dependence on the start of the slip is a small difference of large
@@ -46,12 +52,17 @@ __all__ = ["EXACT_ABSTOL", "EXACT_RELTOL", "GRAZING_REASONS", "ExactArcs", "exac
 # forward sensitivities stopped at t = 0 ("initial ewt component = 0.0 illegal").
 EXACT_RELTOL = 1e-10
 EXACT_ABSTOL = (1e-10, 1e-10, 1e-10)
-# The stop-time Newton: converged when |v − v_stop| is below ROOT_ABSTOL (mm/s; the
-# integrator's own accuracy in v near a stop) or the Newton step below ROOT_STEP (ms).
-# Started from the event-located stop, it needs 1-3 iterations; no line search (the
-# integrator's noise in v, not the model, decides the last digits there).
-ROOT_ABSTOL = 1e-6
+# The stop-time Newton: converged when its step is below ROOT_STEP (ms) or the speed's
+# miss below ROOT_MISS of the slip's peak speed. The integrator's own noise in v decides
+# the last digits: measured at IDAS 1e-10, the miss wanders at 1e-7 to 5e-7 mm/s on a
+# 28 mm/s slip and the step at 1e-9 to 5e-9 ms, whatever the iterations; CVODES's noise is
+# ten times that. Started from the event-located stop it needs 1-5 iterations; an arc
+# not converged in ROOT_MAX_ITER (or whose stop would move before the slip's start)
+# counts as failed. The derivative terms a miss leaves are proportional to it (see
+# ExactArcs._build): at 1e-6 of the peak speed, below the integration error.
 ROOT_STEP = 1e-9
+ROOT_MISS = 1e-6
+ROOT_MAX_ITER = 8
 # What makes an arc grazing (fractions): its stop within GRAZE_NODE of a step period of
 # a step node (a block that nearly stopped is pushed on, or not, by the next step); its
 # peak speed within GRAZE_ARM of the stick threshold (armed or not); the spring force at
@@ -96,22 +107,40 @@ class ExactArcs:
         self.n_failed = 0  # arcs whose IDAS integration or stop refinement failed
 
     # ---------------------------------------------------------------- symbolic
-    @functools.cached_property
-    def _segment(self) -> ca.Function:
+    @functools.cache
+    def _segment(self, plugin: str) -> ca.Function:
         """(X0, xp_um, p) -> X at the end of one segment of the slip ODE (x, v, state),
-        the segment's length the last entry of p (ms)."""
+        the segment's length the last entry of p (ms), integrated by ``plugin``."""
         ode, x3, u, p = _forward_slip_ode(self.model)
-        opts = dict(reltol=self.reltol, abstol=min(self.abstol),
-                    fsens_err_con=True, calc_ic=True, max_num_steps=200_000,
-                    disable_internal_warnings=True)
-        integ = ca.integrator("slip_idas", "idas", dict(x=x3, u=u, p=p, ode=ode), 0.0, 1.0, opts)
+        opts = dict(reltol=self.reltol, abstol=min(self.abstol), max_num_steps=200_000)
+        if plugin == "idas":
+            opts.update(fsens_err_con=True, calc_ic=True, disable_internal_warnings=True)
+        integ = ca.integrator(f"slip_{plugin}", plugin, dict(x=x3, u=u, p=p, ode=ode), 0.0, 1.0, opts)
         X0, xp, pp = ca.MX.sym("X0", 3), ca.MX.sym("xp"), ca.MX.sym("p", p.numel())
         return ca.Function("segment", [X0, xp, pp], [integ(x0=X0, u=xp, p=pp)["xf"]],
                            ["X0", "xp_um", "p"], ["Xf"])
 
-    def _build(self, s: _Structure) -> ca.Function:
-        """(a_var, a, τ0, v_stop) -> (y = [slip µm, state at horizon, stop ms], dy[:2]/da_var)."""
-        ix, law, seg = self.index, self.law, self._segment
+    @functools.cached_property
+    def _rhs(self) -> ca.Function:
+        """(X, xp_um, p) -> dX/dt per ms (the segment ODE with a duration of 1 ms)."""
+        ode, x3, u, p = _forward_slip_ode(self.model)
+        return ca.Function("slip_rhs", [x3, u, p], [ode])
+
+    def _build(self, s: _Structure, plugin: str) -> tuple[ca.Function, ca.Function]:
+        """Two Functions of one structure, both (a_var, a, τ, v_stop) -> ...:
+
+        * ``step``: the Newton step on the stop time, (v_stop − v(τ)) / v̇(τ) (ms), and
+          v(τ) − v_stop (mm/s), values only, for refining τ to the root;
+        * ``arc``: y = [slip µm, state at horizon, stop ms] and dy[:2]/da_var at a root τ.
+
+        At the root, the stop time's derivative is the implicit function theorem's,
+        dτ*/da = −(∂v/∂a) / v̇, and the state's is ∂X/∂a + Ẋ·dτ*/da. Both come out of
+        differentiating one Newton step X(τ) + Ẋ·(v_stop − v(τ))/v̇ taken from the root
+        with τ held: the terms the step adds beyond these are multiplied by the
+        residual, zero there. So each arc needs a single integration with forward
+        sensitivities (the rootfinder's implicit derivative re-integrates the
+        sensitivities at every Newton iteration)."""
+        ix, law, seg = self.index, self.law, self._segment(plugin)
         a_all = ca.MX.sym("a", self.n_in)
         a_var = ca.MX.sym("a_var", len(s.rows))
         sel = np.zeros((self.n_in, len(s.rows)))
@@ -134,40 +163,35 @@ class ExactArcs:
             chain = seg.mapaccum("whole", s.whole)
             nodes = u0 + step_um * ca.DM(np.arange(s.whole)).T
             X = chain(X, nodes, ca.repmat(pv(period_ms), 1, s.whole))
-        tau0, v_stop = ca.MX.sym("tau0"), ca.MX.sym("v_stop")
+        tau, v_stop = ca.MX.sym("tau"), ca.MX.sym("v_stop")
         u_last = u0 + s.whole * step_um
         if s.stopped:
-            # G(τ; what the stop depends on) = v(τ) − v_stop, on free symbols: the
-            # rootfinder's parameters are then the arc's own expressions
-            tau = ca.MX.sym("tau")
-            Xs_, u_, p_ = ca.MX.sym("X", 3), ca.MX.sym("u"), ca.MX.sym("p", pv(0).numel())
-            vs_ = ca.MX.sym("vs")
-            pin = ca.vertcat(Xs_, u_, p_, vs_)
-            pr = ca.vertcat(p_[:-1], tau)
-            G = ca.Function("stop", [tau, pin], [seg(Xs_, u_, pr)[1] - vs_])
-            rf = ca.rootfinder("stop_time", "newton", G, dict(
-                abstol=ROOT_ABSTOL, abstolStep=ROOT_STEP, max_iter=30, line_search=False,
-                error_on_fail=True))
-            tau_star = rf(tau0, ca.vertcat(X, u_last, pv(0), v_stop))
-            Xe = seg(X, u_last, pv(tau_star))
-            stop_ms = s.whole * period_ms + tau_star
+            Xr = seg(X, u_last, pv(tau))
+            rate = self._rhs(Xr, u_last, pv(1.0))
+            miss = Xr[1] - v_stop
+            dtau = -miss / rate[1]
+            Xe = Xr + rate * dtau
+            stop_ms = s.whole * period_ms + tau + dtau
         else:
-            Xe = X
+            Xe, dtau, miss = X, ca.MX(0), ca.MX(0)
             stop_ms = s.whole * period_ms
         rest_s = (M * period_ms - stop_ms) * TIME_UNIT
         P = {n: pm[i] for i, n in enumerate(self.param_names)}
         z_end = law.rest(Xe[2] * law.state_scale, rest_s, P, ops=ca) if s.stopped else Xe[2] * law.state_scale
         y = ca.vertcat(Xe[0] - a[0], z_end, stop_ms)
-        J = ca.jacobian(y[:2], a_var)
-        return ca.Function("arc_exact", [a_var, a_all, tau0, v_stop], [y, J],
-                           ["a_var", "a", "tau0", "v_stop"], ["y", "dy_da"])
+        # forward mode, one direction per input: two outputs against several inputs
+        # would otherwise go to adjoint sensitivities (a backward integration)
+        J = ca.jtimes(y[:2], a_var, ca.DM.eye(len(s.rows)))
+        ins, names = [a_var, a_all, tau, v_stop], ["a_var", "a", "tau", "v_stop"]
+        return (ca.Function("stop_step", ins, [dtau, miss], names, ["dtau", "miss"]),
+                ca.Function("arc_exact", ins, [y, J], names, ["y", "dy_da"]))
 
-    def function(self, whole: int, stopped: bool, rows: tuple) -> ca.Function:
-        """The cached Function of one arc structure."""
+    def function(self, whole: int, stopped: bool, rows: tuple, plugin: str = "idas") -> tuple[ca.Function, ca.Function]:
+        """The cached (stop step, arc) Functions of one arc structure."""
         s = _Structure(int(whole), bool(stopped), tuple(int(r) for r in rows))
-        f = self._functions.get(s)
+        f = self._functions.get((s, plugin))
         if f is None:
-            f = self._functions[s] = self._build(s)
+            f = self._functions[(s, plugin)] = self._build(s, plugin)
         return f
 
     # ---------------------------------------------------------------- numeric
@@ -184,13 +208,50 @@ class ExactArcs:
         v_stop = np.where(armed, v_stick / SPEED_UNIT, 0.0)
         return whole, stopped, v_stop
 
+    def _stop_times(self, step: ca.Function, args: tuple, peak_mm_s: np.ndarray,
+                    threads: int) -> tuple[np.ndarray, np.ndarray]:
+        """Newton on the stop time of each arc of one structure, from the event-located
+        stop; returns (τ, converged). Values only: one integration per iteration."""
+        n = args[2].size
+        tau = np.array(args[2], float)
+        done = np.zeros(n, bool)
+        live = np.ones(n, bool)
+        for _ in range(ROOT_MAX_ITER):
+            cols = np.nonzero(live & ~done)[0]
+            if not cols.size:
+                break
+            sub = tuple(x[:, cols] if np.ndim(x) > 1 else x[cols] for x in (args[0], args[1], tau, args[3]))
+            peak = peak_mm_s[cols]
+            try:
+                dtau, miss = (np.array(o).ravel() for o in _mapped(step, cols.size, threads)(*sub))
+            except RuntimeError:
+                dtau, miss = np.full(cols.size, np.nan), np.full(cols.size, np.nan)
+                for j in range(cols.size):
+                    try:
+                        dtau[j], miss[j] = (float(o) for o in step(*(x[:, j] if np.ndim(x) > 1 else x[j] for x in sub)))
+                    except RuntimeError:
+                        pass
+            bad = ~np.isfinite(dtau) | (tau[cols] + dtau < 0)
+            live[cols[bad]] = False
+            good = cols[~bad]
+            tau[good] += dtau[~bad]
+            done[good] = (np.abs(dtau[~bad]) < ROOT_STEP) | (np.abs(miss[~bad]) < ROOT_MISS * peak[~bad])
+        return tau, done & live
+
     def jacobian(self, A: np.ndarray, Y: np.ndarray, rows, threads: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Exact d(slip, state at horizon)/d(inputs ``rows``) of every arc (columns of A),
         seeded by its event-located outputs ``Y`` (5 × n, :meth:`ArcFunctions.evaluate`).
 
         Returns (y, J, ok): y (3 × n: slip µm, state at horizon, stop ms, from the IDAS
         integration), J (2 × n_in × n, zero in the rows not asked for) and, per arc,
-        whether IDAS and the stop refinement succeeded (else y and J are NaN there)."""
+        whether the integration and the stop refinement succeeded (else y and J are NaN
+        there).
+
+        IDAS integrates every arc; an arc it cannot start is integrated by CVODES, the
+        same BDF method for explicit ODEs (measured: IDAS's consistent-initial-condition
+        search, IDACalcIC, failed on 28 of ~1100 arcs of the 10-run speed set, slips
+        from a fully aged contact whose initial acceleration is ~2·10⁴ in scaled units;
+        CVODES needs no initial derivative)."""
         rows = tuple(int(r) for r in rows)
         n = A.shape[1]
         y = np.full((3, n), np.nan)
@@ -198,38 +259,82 @@ class ExactArcs:
         ok = np.zeros(n, bool)
         if not n:
             return y, J, ok
-        whole, stopped, v_stop = self.structure(A, Y)
         finite = np.all(np.isfinite(A), axis=0) & np.all(np.isfinite(Y[:5]), axis=0)
+        todo = np.nonzero(finite)[0]
+        for plugin in ("idas", "cvodes"):
+            if not todo.size:
+                break
+            with _held_stderr(plugin):
+                yy, jj, done = self._pass(A[:, todo], Y[:, todo], rows, threads, plugin)
+            y[:, todo[done]], J[:, :, todo[done]], ok[todo[done]] = yy[:, done], jj[:, :, done], True
+            todo = todo[~done]
+        self.n_failed += int(todo.size)
+        J[:, :, ~ok] = np.nan
+        return y, J, ok
+
+    def _pass(self, A: np.ndarray, Y: np.ndarray, rows: tuple, threads: int, plugin: str):
+        """:meth:`jacobian` of arcs with finite inputs, by one integrator plugin."""
+        n = A.shape[1]
+        y = np.full((3, n), np.nan)
+        J = np.zeros((2, self.n_in, n))
+        ok = np.zeros(n, bool)
+        whole, stopped, v_stop = self.structure(A, Y)
         keys = np.stack([whole, stopped.astype(int)])
-        for key in np.unique(keys[:, finite], axis=1).T:
-            cols = np.nonzero(finite & (whole == key[0]) & (stopped == bool(key[1])))[0]
-            f = self.function(int(key[0]), bool(key[1]), rows)
+        for key in np.unique(keys, axis=1).T:
+            cols = np.nonzero((whole == key[0]) & (stopped == bool(key[1])))[0]
+            step, f = self.function(int(key[0]), bool(key[1]), rows, plugin)
             period_ms = 1 / A[self.index["fp"], cols] / TIME_UNIT
             tau0 = Y[2, cols] - key[0] * period_ms if key[1] else np.zeros(cols.size)
             args = (A[list(rows)][:, cols], A[:, cols], tau0, v_stop[cols])
+            if key[1]:
+                tau, conv = self._stop_times(step, args, np.abs(Y[3, cols]) / SPEED_UNIT, threads)
+            else:
+                tau, conv = tau0, np.ones(cols.size, bool)
+            cols, args = cols[conv], (args[0][:, conv], args[1][:, conv], tau[conv], args[3][conv])
+            if not cols.size:
+                continue
             try:
-                fm = f.map(cols.size, "thread", threads) if threads > 1 else f.map(cols.size)
-                yy, jj = fm(*args)
+                yy, jj = _mapped(f, cols.size, threads)(*args)
                 yy, jj = np.array(yy), np.array(jj)
                 done = np.ones(cols.size, bool)
             except RuntimeError:
-                # one arc the integrator or the Newton cannot do must not sink the others
+                # one arc the integrator cannot do must not sink the others
                 yy, jj = np.full((3, cols.size), np.nan), np.full((2, len(rows) * cols.size), np.nan)
                 done = np.zeros(cols.size, bool)
                 for c in range(cols.size):
                     try:
-                        y1, j1 = f(*(np.asarray(x)[..., c] if np.ndim(x) > 1 else np.asarray(x)[c] for x in args))
+                        y1, j1 = f(*(x[:, c] if np.ndim(x) > 1 else x[c] for x in args))
                         yy[:, c] = np.array(y1).ravel()
                         jj[:, c * len(rows):(c + 1) * len(rows)] = np.array(j1)
                         done[c] = True
                     except RuntimeError:
-                        self.n_failed += 1
+                        pass
             y[:, cols] = yy
             # (the map puts each arc's 2 × rows block side by side)
             J[:, np.array(rows)[:, None], cols[None, :]] = jj.reshape(2, cols.size, len(rows)).transpose(0, 2, 1)
-            ok[cols] = done & np.all(np.isfinite(yy), axis=0)
-        J[:, :, ~ok] = np.nan
+            ok[cols] = done & np.all(np.isfinite(yy), axis=0) & np.all(np.isfinite(jj.reshape(2, cols.size, -1)), axis=(0, 2))
         return y, J, ok
+
+
+@contextlib.contextmanager
+def _held_stderr(what: str):
+    """Keep what SUNDIALS and CasADi print when an integration fails (the solver's
+    message and every input of each Function it failed in, tens of lines per arc) off
+    the user's terminal: the arc is integrated again or counted as failed, and the
+    message goes to the debug log."""
+    held = io.StringIO()
+    with _stderr_lock:
+        try:
+            with contextlib.redirect_stderr(held):
+                yield
+        finally:
+            text = held.getvalue().strip()
+            if text:
+                log.debug("%s: %s", what, text.splitlines()[0])
+
+
+def _mapped(f: ca.Function, n: int, threads: int) -> ca.Function:
+    return f.map(n, "thread", threads) if threads > 1 else f.map(n)
 
 
 def grazing_flags(model: Model, A: np.ndarray, Y: np.ndarray, index: dict) -> np.ndarray:

@@ -43,9 +43,14 @@ block-diagonal product. The Gauss–Newton Hessian is JᵣᵀJᵣ.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import os
+import re
+import tempfile
 import time
+import weakref
 from dataclasses import dataclass
 from typing import Iterable, Mapping, Sequence
 
@@ -54,7 +59,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import kkt
-from .arcs import ArcFunctions, arc_functions
+from .arcs import ArcFunctions, arc_functions, share_groups
 from .exact_arcs import exact_arcs
 from .model import LENGTH_UNIT, Model
 from .params import SPECS
@@ -214,6 +219,9 @@ COVARIANCE_REL_STEP = 1e-4  # secant step of the arc differences for the covaria
 # (robust, cluster, model) within 0.17 % of those on each arc's own differences (at 1e-3:
 # 61 arcs, within 0.2 %).
 COVARIANCE_SHARE_TOL = 1e-4
+# Exact arc Jacobians (identify.exact_arcs) are shared among arcs whose inputs agree to
+# this relative distance: an exact Jacobian costs ~10 forward differences
+EXACT_SHARE_TOL = 1e-4
 
 
 @dataclass
@@ -291,12 +299,20 @@ class _ArcCallback(ca.Callback):
         arcs = self.arcs
         rows = list(range(arcs.n_in)) if self.rows is None else list(self.rows)
         Y = arcs.evaluate(A, self.threads)  # (remembered: the solver asked for the values first)
-        _, J, ok = exact_arcs(arcs.model, arcs.input_names).jacobian(A, Y, rows, self.threads)
+        n = A.shape[1]
+        reps, inverse = np.arange(n), None
+        if self.share is not None and n > 1:
+            reps, inverse = share_groups(A, Y, rows, arcs.typical, self.share, own=self.own)
+        B, YB = A[:, reps], Y[:, reps]
+        _, J, ok = exact_arcs(arcs.model, arcs.input_names).jacobian(B, YB, rows, self.threads)
         if not ok.all():
-            _, Jfd = arcs.evaluate_jacobian(A[:, ~ok], self.threads, rows=rows, scheme="central",
+            _, Jfd = arcs.evaluate_jacobian(B[:, ~ok], self.threads, rows=rows, scheme="central",
                                             rel_step=SOLVE_REL_STEP)
             J[:, :, ~ok] = Jfd.reshape(2, int((~ok).sum()), arcs.n_in).transpose(0, 2, 1)
-        return J.transpose(0, 2, 1).reshape(2, A.shape[1] * arcs.n_in)
+        if inverse is not None:
+            J = J[:, :, inverse]
+        self.counter["jac_arcs"] = self.counter.get("jac_arcs", 0) + reps.size
+        return J.transpose(0, 2, 1).reshape(2, n * arcs.n_in)
 
     def has_jacobian(self):
         # the values' Jacobian is the Jacobian callback's, laid out per output entry:
@@ -385,6 +401,115 @@ def _kkt_solve(H, Jg, grad, g, free):
     problem's KKT system; RuntimeError when it is singular (sparse LU)."""
     K = sp.bmat([[H[free][:, free], Jg[:, free].T], [Jg[:, free], None]], format="csc")
     return kkt.solve(K, np.r_[-grad[free], -g])
+
+
+class _IpoptLog:
+    """Ipopt's iteration log in a temporary file, read for what CasADi's stats leave out:
+    which iterations were restoration ones (Ipopt marks their number with an ``r``).
+    Ipopt appends every solve of one nlpsol to the file; each solve reads its part."""
+
+    _ROW = re.compile(r"^\s*\d+(r?)\s+[-+0-9.]")
+
+    def __init__(self):
+        fd, self.path = tempfile.mkstemp(prefix="nanofrictor-ipopt-", suffix=".log")
+        os.close(fd)
+        weakref.finalize(self, _unlink, self.path)
+
+    def mark(self) -> int:
+        try:
+            return os.path.getsize(self.path)
+        except OSError:
+            return 0
+
+    def restoration_iterations(self, mark: int) -> int:
+        try:
+            with open(self.path, errors="replace") as fh:
+                fh.seek(mark)
+                text = fh.read()
+        except OSError:
+            return 0
+        return sum(1 for line in text.splitlines() if (m := self._ROW.match(line)) and m.group(1))
+
+
+def _unlink(path: str) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path)
+
+
+class _IpoptConvergence(ca.Callback):
+    """Ipopt's iteration callback: stops the solve where the Gauss–Newton SQP would
+    call it converged (:meth:`Problem.solve_gn`'s statistical test): at a point
+    feasible to ``feas_tol`` µm whose full Gauss–Newton step would move the model's
+    predictions by less than ``stat_tol`` in ½χ² (the parameters by < 0.015 σ).
+
+    The test needs the arcs' Jacobian at the iterate, which Ipopt asks for next anyway
+    (the arcs' callback remembers it), so it costs one KKT solve per iteration."""
+
+    def __init__(self, problem: "Problem"):
+        ca.Callback.__init__(self)
+        self.problem = problem
+        self.nx, self.ng = problem.n_w, problem.n_g
+        self.converged = self.status = self.best = None
+        self.since = 0
+        self.lbx = self.ubx = None
+        self.stat_tol, self.feas_tol = STAT_TOL, FEAS_TOL
+        self.construct("ipopt_convergence", {})
+
+    def start(self, lbx, ubx, stat_tol: float, feas_tol: float):
+        self.lbx, self.ubx, self.stat_tol, self.feas_tol = lbx, ubx, stat_tol, feas_tol
+        self.converged, self.status = None, None
+        self.best, self.since = None, 0  # best ½χ² so far; iterations since it fell by stat_tol
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "ret"
+
+    def get_sparsity_in(self, i):
+        n = ca.nlpsol_out(i)
+        size = {"x": self.nx, "lam_x": self.nx, "g": self.ng, "lam_g": self.ng, "f": 1}.get(n, 0)
+        return ca.Sparsity.dense(size, 1)
+
+    def eval(self, arg):
+        w = np.array(arg[0], float).ravel()
+        try:
+            r, g, Jr, Jg = self.problem.evaluate(w, jac=True)
+        except RuntimeError:
+            return [0]
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(g))):
+            return [0]
+        feas = float(np.abs(g).max()) if g.size else 0.0
+        if feas >= self.feas_tol:
+            log.debug("Ipopt iterate: |g| %.2e", feas)
+            return [0]
+        d, _, _ = _bounded_step((Jr.T @ Jr).tocsc(), Jg, Jr.T @ r, g, w, self.lbx, self.ubx, self.lbx == self.ubx)
+        if d is None or not np.all(np.isfinite(d)):
+            return [0]
+        dr = Jr @ d
+        moves = 0.5 * float(dr @ dr)
+        log.debug("Ipopt iterate: |g| %.2e, the Gauss-Newton step moves 1/2 chi2 by %.3g", feas, moves)
+        f = float(np.asarray(arg[1]).ravel()[0])
+        if self.best is None or f < self.best - self.stat_tol:
+            self.best, self.since = f, 0
+        else:
+            self.since += 1
+        if moves < self.stat_tol:
+            self.converged, self.status = w, "Solve_Succeeded"
+            return [1]
+        if self.since >= STALL_ITERS and feas < self.problem.stall_feas and moves < self.problem.stall_tol:
+            # the iterates no longer gain and the linearisation puts the solution within
+            # the stall tolerance: the SQP's Stalled_Within_Tolerance (a step along the
+            # model crosses one of the arcs' kinks, where no line search gains)
+            self.converged, self.status = w, STALLED
+            return [1]
+        return [0]
 
 
 def _bounded_step(H, Jg, grad, g, w, lbx, ubx, fixed_mask):
@@ -788,10 +913,16 @@ class Problem:
                 hess_lag=ca.Function("hess_lag", [w, p, lam_f, lam_g], [ca.triu(lam_f * ca.mtimes(Jr.T, Jr))],
                                      ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"]),
             )
+            self._ipopt_test = _IpoptConvergence(self)
+            self._ipopt_log = _IpoptLog()
             self.ipopt = ca.nlpsol("identify", "ipopt", {"x": w, "f": f, "g": g}, dict(
                 oracle, print_time=False, calc_lam_p=False, calc_multipliers=False, error_on_fail=False,
+                iteration_callback=self._ipopt_test,
                 ipopt={"print_level": 0, "sb": "yes", "max_iter": opts.max_iter, "tol": opts.tol,
-                       "hessian_approximation": "exact"},
+                       "hessian_approximation": "exact",
+                       # (the iteration log, for the restoration iterations: CasADi's
+                       # stats do not say which iterations were restoration ones)
+                       "output_file": self._ipopt_log.path, "file_print_level": 5},
             ))
         return self
 
@@ -874,7 +1005,7 @@ class Problem:
         for a solution that only decides the next sequence; the result says ``loose``."""
         self.jacobian_scheme(self.opts.arc_jacobian, SOLVE_REL_STEP)
         if self.opts.solver == "ipopt":
-            return self.solve_ipopt(w0, fixed)
+            return self.solve_ipopt(w0, fixed, loose)
         if not loose:
             return self._solve_gn_resolved(w0, fixed)
         # (only the convergence test: the line search's and the stall rule's tolerances
@@ -958,14 +1089,31 @@ class Problem:
             return float("inf")
         return float(np.abs(g).max()) if g.size else 0.0
 
-    def solve_ipopt(self, w0, fixed=None) -> dict:
+    def solve_ipopt(self, w0, fixed=None, loose: bool = False) -> dict:
+        """Ipopt (interior point, filter line search) on the Gauss–Newton Hessian, stopped
+        by the SQP's own statistical test (:class:`_IpoptConvergence`): its KKT
+        tolerance is on the gradient, which the arcs' integration noise keeps from
+        falling below ~1e-3 (measured: after reaching ½χ² to 1e-5 in 5 iterations, it
+        spent 95 more at inf_du 8.6e-4 with the line search taking steps of 1e-12)."""
         lbx, ubx = self.bounds(fixed)
+        test = self._ipopt_test
+        test.start(lbx, ubx, LOOSE_STAT_TOL if loose else self.stat_tol,
+                   LOOSE_FEAS_TOL if loose else self.feas_tol)
         t0 = time.perf_counter()
+        mark = self._ipopt_log.mark()
         sol = self.ipopt(x0=np.clip(w0, lbx, ubx), lbx=lbx, ubx=ubx, lbg=0, ubg=0)
         st = self.ipopt.stats()
-        return dict(w=np.array(sol["x"]).ravel(), f=float(sol["f"]), status=st.get("return_status", "?"),
-                    success=bool(st.get("success", False)), iterations=int(st.get("iter_count", -1)),
-                    wall_s=time.perf_counter() - t0)
+        restoration = self._ipopt_log.restoration_iterations(mark)
+        status = st.get("return_status", "?")
+        w = np.array(sol["x"]).ravel()
+        success = bool(st.get("success", False))
+        if test.converged is not None:
+            # Ipopt stops after the callback with its last accepted iterate: the point tested
+            w, status, success = test.converged, test.status, True
+        f = 0.5 * float(np.sum(self.residuals(w) ** 2))
+        return dict(w=w, f=f, status=status, success=success, iterations=int(st.get("iter_count", -1)),
+                    wall_s=time.perf_counter() - t0, solver="ipopt", ipopt_status=st.get("return_status", "?"),
+                    restoration_iterations=restoration, **({"loose": True} if loose else {}))
 
     def solve_gn(self, w0: np.ndarray, fixed: Mapping[int, float] | None = None) -> dict:
         """Constrained Gauss–Newton SQP (generalised Gauss–Newton, Bock's method).
@@ -1609,6 +1757,8 @@ class Problem:
             may, share = share, bool(share.any())
         if tol is None and scheme == "forward":
             tol = SHARE_TOL
+        elif tol is None and scheme == "exact":
+            tol = EXACT_SHARE_TOL
         if not (share and self.opts.share_arc_jacobian):
             tol = None
         own = None if tol is None or may is None or may.all() else ~may

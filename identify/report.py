@@ -141,6 +141,11 @@ class FitResult:
             f"constraints, {self.nlp_size['residuals']} residuals",
             f"    solver             = {s['method']}: {s['status']} after {s['iterations']} "
             f"iterations, {s['wall_time_s']:.2f} s",
+            *([f"    Ipopt              = "
+               + ("stopped at the fit's Gauss-Newton convergence test" if s["ipopt_status"] == "User_Requested_Stop"
+                  else f"returned {s['ipopt_status']}")
+               + f"; {s.get('restoration_iterations', 0)} restoration iteration(s)"]
+              if s.get("ipopt_status") else []),
             *(["    triggers           = intervals (after the uniform encoding's fit); no trigger "
                "residuals in the chi-square or the covariance"] if s.get("trigger") == "interval" else []),
             f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved, "
@@ -409,6 +414,7 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
                     slips_removed=int(best.get("slips_removed", 0)),
                     restarts=list(best.get("restarts", [])), solution_gap=gap,
                     sequence_not_kept=best.get("sequence_not_kept"),
+                    **{k: best[k] for k in ("ipopt_status", "restoration_iterations") if k in best},
                     method=("Gauss-Newton SQP (Gauss-Newton Hessian, l1-merit line search)"
                             if prob.opts.solver == "gauss-newton" else "Ipopt (Gauss-Newton Hessian)"),
                     trigger=prob.opts.trigger),
