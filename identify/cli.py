@@ -267,7 +267,8 @@ def _run_fit(args, data, true_values=None) -> int:
     for name in (n.strip() for n in (args.profile or "").split(",") if n.strip()):
         if name not in res.free:
             raise CLIError(f"--profile {name}: not a free parameter ({', '.join(res.free)})")
-        res.profile(name, progress=lambda msg: print(f"[fit] {msg}", file=sys.stderr, flush=True))
+        res = res.with_profiles(res.profile(name, progress=lambda msg: print(f"[fit] {msg}", file=sys.stderr,
+                                                                             flush=True)))
         if args.json:
             _write_json(args.json, res.to_json())
     print(res.report())

@@ -143,11 +143,16 @@ def plot_profile(profile, ax=None):
         _, ax = plt.subplots(figsize=(4.5, 3.5), constrained_layout=True)
     ax.plot(profile.values, profile.delta_chi2, "o-", ms=3)
     ax.axhline(profile.threshold, color="C3", ls="--", lw=1, label=f"95 % (Δχ² = {profile.threshold:.2f})")
-    if profile.ci95:
-        for c in profile.ci95:
+    for c in profile.ci95 or ():
+        if c is not None:
             ax.axvline(c, color="0.6", lw=0.8)
+    failed = getattr(profile, "failed", ())
+    if len(failed):
+        ax.plot(failed, np.zeros(len(failed)), "x", color="C3", ms=5, label="not converged (left out)")
+    und = getattr(profile, "undetermined", None)
     ax.set(xlabel=profile.name, ylabel="Δχ²",
-           title=f"profile of {profile.name}" + (" (flat)" if profile.flat else ""))
+           title=f"profile of {profile.name}" + ({"both": " (flat)", "above": " (open above)",
+                                                   "below": " (open below)"}.get(und or "", "")))
     ax.legend(fontsize=7, frameon=False)
     return ax
 

@@ -7,6 +7,7 @@ never as a confident estimate.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
@@ -30,6 +31,11 @@ errors), where the solver's own stall test asks 0.01."""
 NEAR_SOLUTION_FEAS_UM = 1e-3  # 1 nm of continuity: 1/90 of the camera noise
 Z95 = 1.959963984540054
 CHI2_95 = 3.841458820694124  # 95 % quantile of χ² with 1 degree of freedom
+MAX_EXTEND = 6  # doublings of a profile's walk past its grid before a side is called open
+REFINE_STEPS = 3  # bisections of the bracket where a profile crosses the 95 % threshold
+# a profile point this much below the fit's χ² is a better fit (the solvers' own stall
+# tolerance is 0.01 of ½χ², so 0.1 of χ² is beyond what stopping early explains)
+BETTER_TOL = 0.1
 
 
 @dataclass
@@ -45,16 +51,26 @@ class ParameterEstimate:
     init: float | None = None
     flag: str | None = None
     true: float | None = None
+    # the profile likelihood's 95 % interval, beside (never instead of) ``ci95``; a side
+    # the profile never closes is None there (the parameter is undetermined that way)
+    ci95_profile: tuple | None = None
 
     def to_json(self) -> dict:
         return dict(value=self.value, stderr=self.stderr,
                     ci95=list(self.ci95) if self.ci95 is not None else None,
+                    ci95_profile=list(self.ci95_profile) if self.ci95_profile is not None else None,
                     free=self.free, unit=self.unit, init=self.init, flag=self.flag, true=self.true)
 
 
 @dataclass
 class Profile:
-    """Profile likelihood of one parameter: Δχ² against its value."""
+    """Profile likelihood of one parameter: Δχ² against its value.
+
+    ``values``, ``delta_chi2``: the points whose constrained fit converged (the only ones
+    that count); ``failed``: the values where it did not. ``ci95``: (lower, upper), a
+    side None where Δχ² never reaches the threshold (``open_below``, ``open_above``:
+    the data do not bound the parameter that way over the range walked, ``reach``);
+    None when both are open (``flat``)."""
 
     name: str
     values: np.ndarray
@@ -62,10 +78,35 @@ class Profile:
     ci95: tuple | None
     flat: bool
     threshold: float
+    open_below: bool = False
+    open_above: bool = False
+    failed: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    reach: tuple | None = None  # the farthest converged values walked, (below, above)
+    # (value, Δχ² < 0) where a constrained fit beat the fit itself: the fit's optimum is
+    # a local one, and ci95 is the interval about this better point
+    better: tuple | None = None
+
+    @property
+    def undetermined(self) -> str | None:
+        """'above', 'below', 'both' or None: where the profile leaves the parameter open."""
+        if self.open_below and self.open_above:
+            return "both"
+        return "above" if self.open_above else "below" if self.open_below else None
+
+    def interval_text(self, fmt: str = ".4g") -> str:
+        """The interval with its open sides written out, e.g. ``[0.89, open)``."""
+        if self.ci95 is None:
+            return "no 95% bound on either side"
+        lo = "(open" if self.ci95[0] is None else f"[{self.ci95[0]:{fmt}}"
+        hi = "open)" if self.ci95[1] is None else f"{self.ci95[1]:{fmt}}]"
+        return f"{lo}, {hi}"
 
     def to_json(self) -> dict:
         return dict(name=self.name, values=self.values.tolist(), delta_chi2=self.delta_chi2.tolist(),
-                    ci95=list(self.ci95) if self.ci95 else None, flat=self.flat, threshold=self.threshold)
+                    ci95=list(self.ci95) if self.ci95 else None, flat=self.flat, threshold=self.threshold,
+                    undetermined=self.undetermined, failed=np.asarray(self.failed).tolist(),
+                    better=list(self.better) if self.better else None,
+                    reach=list(self.reach) if self.reach else None)
 
     def plot(self, ax=None):
         from .plots_fit import plot_profile
@@ -188,6 +229,8 @@ class FitResult:
             init = f" (init = {p.init:.5g})" if p.init is not None else ""
             true = f" [true = {p.true:.6g}]" if p.true is not None else ""
             lines.append(f"    {n + ':':<{width + 1}} {txt} {unit}{ci}{init}{true}")
+            if n in self.profiles:
+                lines.append(f"    {'':<{width + 1}}   profile 95% {self.profiles[n].interval_text()}")
             if p.flag:
                 lines.append(f"    {'':<{width + 1}} ! {p.flag}")
         corr = []
@@ -202,8 +245,14 @@ class FitResult:
         if self.profiles:
             lines.append("[[Profiles]]")
             for n, pr in self.profiles.items():
-                ci = f"95% [{pr.ci95[0]:.4g}, {pr.ci95[1]:.4g}]" if pr.ci95 else "no 95% bound within the range"
-                lines.append(f"    {n}: {ci}{' (flat: undetermined)' if pr.flat else ''}")
+                und = {"both": " (flat: undetermined)", "above": " (undetermined above)",
+                       "below": " (undetermined below)"}.get(pr.undetermined or "", "")
+                bad = f"; {len(pr.failed)} point(s) not converged, left out" if len(pr.failed) else ""
+                lines.append(f"    {n}: 95% {pr.interval_text()}{und}, {len(pr.values)} points{bad}")
+                if pr.better:
+                    lines.append(f"        ! a better fit lies at {n} = {pr.better[0]:.4g} (chi-square lower by "
+                                 f"{-pr.better[1]:.3g}): the fit stopped in a local minimum; the interval is "
+                                 f"about that point. Refit from there (start={{'{n}': {pr.better[0]:.4g}}})")
         lines.append("[[Runs]]")
         for r in self.runs:
             if r["used"]:
@@ -235,14 +284,31 @@ class FitResult:
 
     # ---------------------------------------------------------------- more work
     def profile(self, name: str, n_points: int = 13, span: float = 4.0, progress=None) -> Profile:
-        """Profile likelihood of ``name`` (a free parameter); stored in ``profiles``."""
-        pr = profile(self, name, n_points=n_points, span=span, progress=progress)
-        self.profiles[name] = pr
-        if pr.flat and self.parameters[name].flag is None:
-            self.parameters[name].flag = "undetermined: flat profile (the data do not fix it)"
-        if pr.ci95 is not None:
-            self.parameters[name].ci95 = pr.ci95
-        return pr
+        """Profile likelihood of ``name`` (a free parameter). The result is unchanged:
+        :meth:`with_profiles` gives a result that carries the profile."""
+        return profile(self, name, n_points=n_points, span=span, progress=progress)
+
+    def with_profiles(self, *profiles: Profile) -> "FitResult":
+        """A copy of this result carrying ``profiles``: each parameter keeps its
+        calibrated ``ci95`` and gets the profile's interval as ``ci95_profile``; a side the
+        profile leaves open is flagged (undetermined above, below, or both)."""
+        params = {n: dataclasses.replace(p) for n, p in self.parameters.items()}
+        for pr in profiles:
+            p = params[pr.name]
+            p.ci95_profile = pr.ci95
+            und = pr.undetermined
+            if pr.better:
+                note = (f"the profile found a better fit at {pr.better[0]:.4g} (chi-square lower by "
+                        f"{-pr.better[1]:.3g}): the fit's optimum is a local one")
+                p.flag = note if not p.flag else f"{p.flag}; {note}"
+            if und:
+                note = ("undetermined: flat profile (the data do not fix it)" if und == "both" else
+                        f"undetermined {und}: the profile stays below the 95% threshold "
+                        f"{'up to' if und == 'above' else 'down to'} "
+                        f"{pr.reach[1 if und == 'above' else 0]:.4g}")
+                p.flag = note if not p.flag else f"{p.flag}; {note}"
+        return dataclasses.replace(self, parameters=params,
+                                   profiles={**self.profiles, **{pr.name: pr for pr in profiles}})
 
     def save_plots(self, folder) -> list:
         from .plots_fit import save_fit_plots
@@ -431,12 +497,19 @@ def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0,
 
     The grid covers ±``span`` standard errors on the parameter's fit scale (log for
     positive parameters), or, without a finite standard error, a factor e^±2 (log) or
-    its bounds. Each point starts from its neighbour's solution, walking out from the
-    optimum. The 95 % interval is where Δχ² crosses 3.84 (× the reduced χ² when the
-    covariance is scaled); no crossing on a side leaves it open. A profile that never
-    reaches the threshold is flat: the data do not determine the parameter.
+    its bounds. Each point starts from the last converged solution before it, walking
+    out from the optimum; a point whose constrained fit does not converge never counts
+    (it is listed in ``failed``: its Δχ² is where a solver stopped, not the likelihood).
+    Past the grid's edge without reaching the threshold, the walk goes on, doubling the
+    distance, until it does, or reaches the bound, or (log scale) a decade, or
+    ``MAX_EXTEND`` doublings. Where Δχ² crosses the threshold (3.84, × the reduced χ²
+    when the covariance is scaled) between two points, the bracket is bisected
+    ``REFINE_STEPS`` times before the crossing is interpolated. A side with no crossing
+    is open: the data do not bound the parameter that way.
     """
     prob = result.problem
+    if prob is None or result.w is None:
+        raise ValueError("profile: this result carries no problem (read from JSON?)")
     tm = prob.theta
     if name not in tm.names:
         raise ValueError(f"profile: {name!r} is not a free parameter ({', '.join(tm.names)})")
@@ -448,40 +521,67 @@ def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0,
     sig = (p.stderr / abs(d)) if p.stderr and np.isfinite(p.stderr) and d else None
     half = span * sig if sig else (2.0 if tm.log[i] else 0.5 * max(tm.hi[i] - tm.lo[i], 1e-6))
     lo, hi = max(th0 - half, tm.lo[i]), min(th0 + half, tm.hi[i])
-    grid = np.unique(np.concatenate([np.linspace(lo, hi, n_points), [th0]]))
+    grid = np.linspace(lo, hi, n_points)
+    # (a grid point within rounding of the optimum would be a second, identical point)
+    grid = np.unique(np.concatenate([grid[np.abs(grid - th0) > 1e-6 * max(half, 1e-12)], [th0]]))
     chi2_min = result.chi2
     scale = result.redchi if prob.opts.scale_covariance else 1.0
     thr = CHI2_95 * max(scale, 1.0)
     out = {th0: 0.0}
+    sols = {th0: w_best}
+    failed: list = []
+    count = [0]
 
     def point(w, val, note):
-        """Δχ² with the parameter held at ``val``, warm-started from ``w``."""
+        """Δχ² with the parameter held at ``val``, warm-started from ``w``; the solution,
+        or None where the constrained fit did not converge."""
         w = w.copy()
         w[i] = val
-        w = prob.solve(w, fixed={i: val})["w"]
-        rr = prob.residuals(w)
-        out[val] = float(rr @ rr + prob.chi2_constant() - chi2_min)
+        res = prob.solve(w, fixed={i: val})
+        count[0] += 1
         if progress:
             progress(f"profile {name}: {note}")
-        return w
+        rr = prob.residuals(res["w"])
+        if not res.get("success") or not np.all(np.isfinite(rr)):
+            failed.append(val)
+            return None
+        out[val] = float(rr @ rr + prob.chi2_constant() - chi2_min)
+        sols[val] = res["w"]
+        return res["w"]
+
+    decade = math.log(10.0)
+    def beyond(direction):
+        return [v for v in out if direction * (v - th0) > 0]
 
     for direction in (+1, -1):
         side = grid[grid > th0] if direction > 0 else grid[grid < th0][::-1]
-        w = w_best.copy()
+        w = w_best
         for val in side:
-            w = point(w, val, f"{len(out) + 1}/{len(grid)}")
-        # not yet past the threshold at the grid's edge: walk on, doubling the distance,
-        # before calling the profile flat (a too-narrow grid is not a flat likelihood)
+            got = point(w, val, f"{count[0] + 1}/{len(grid) - 1}")
+            w = got if got is not None else _nearest_out(sols, th0, val)
+            if got is not None and out[val] >= thr:
+                break  # (the points beyond add nothing to the interval)
         val = side[-1] if len(side) else th0
-        for _ in range(4):
-            if out.get(val, 0.0) >= thr:
+        for _ in range(MAX_EXTEND):
+            if any(out[v] >= thr for v in beyond(direction)):
+                break
+            far = max(beyond(direction) or [th0], key=lambda v: direction * (v - th0))
+            if tm.log[i] and abs(far - th0) >= decade:
                 break
             nxt = th0 + 2 * (val - th0) if val != th0 else th0 + direction * half
             nxt = min(max(nxt, tm.lo[i]), tm.hi[i])
             if nxt == val:
                 break
             val = nxt
-            w = point(w, val, f"extending to {val:.4g} (scaled)")
+            point(sols[far], val, f"extending to {val:.4g} (scaled)")
+        # refine the bracket where Δχ² crosses the threshold
+        for _ in range(REFINE_STEPS):
+            pts = sorted((v for v in out if direction * (v - th0) >= 0), key=lambda v: direction * (v - th0))
+            br = next(((a, b) for a, b in zip(pts, pts[1:]) if out[a] < thr <= out[b]), None)
+            if br is None:
+                break
+            a, b = br
+            point(sols[a], 0.5 * (a + b), f"refining the 95% crossing at {0.5 * (a + b):.4g} (scaled)")
     vals = np.array(sorted(out))
     dchi = np.array([out[v] for v in vals])
     nat = np.array(tm.scale[i] * (np.exp(vals) if tm.log[i] else vals))
@@ -490,12 +590,31 @@ def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0,
         for a in range(len(seq_d) - 1):
             if seq_d[a] < thr <= seq_d[a + 1]:
                 f = (thr - seq_d[a]) / (seq_d[a + 1] - seq_d[a])
-                return seq_v[a] + f * (seq_v[a + 1] - seq_v[a])
+                return float(seq_v[a] + f * (seq_v[a + 1] - seq_v[a]))
         return None
 
+    # a constrained fit better than the fit itself: the fit stopped in a local minimum.
+    # The interval is then the one about the best point found, and the profile says so
+    better = None
     j0 = int(np.argmin(np.abs(vals - th0)))
-    up = crossing(nat[j0:], dchi[j0:])
-    down = crossing(nat[: j0 + 1][::-1], dchi[: j0 + 1][::-1])
-    flat = bool(np.nanmax(dchi) < thr)
-    ci = (float(down), float(up)) if (down is not None and up is not None) else None
-    return Profile(name=name, values=nat, delta_chi2=dchi, ci95=ci, flat=flat, threshold=thr)
+    if dchi.min() < -BETTER_TOL:
+        j0 = int(np.argmin(dchi))
+        better = (float(nat[j0]), float(dchi[j0]))
+        dchi_ref = dchi - dchi[j0]
+    else:
+        dchi_ref = dchi
+    up = crossing(nat[j0:], dchi_ref[j0:])
+    down = crossing(nat[: j0 + 1][::-1], dchi_ref[: j0 + 1][::-1])
+    flat = down is None and up is None
+    ci = None if flat else (down, up)
+    bad = np.array(sorted(tm.scale[i] * (np.exp(v) if tm.log[i] else v) for v in failed))
+    return Profile(name=name, values=nat, delta_chi2=dchi, ci95=ci, flat=flat, threshold=thr,
+                   open_below=down is None, open_above=up is None, failed=bad,
+                   reach=(float(nat[0]), float(nat[-1])), better=better)
+
+
+def _nearest_out(sols: dict, th0: float, val: float) -> np.ndarray:
+    """The converged solution nearest ``val`` on its side of the optimum (the warm start
+    after a point that failed)."""
+    same = [v for v in sols if (v - th0) * (val - th0) >= 0]
+    return sols[min(same, key=lambda v: abs(v - val))]

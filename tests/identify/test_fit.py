@@ -1534,6 +1534,23 @@ def test_cli_fit_writes_json(small_data, tmp_path, capsys):
     assert "[[Variables]]" in capsys.readouterr().out
 
 
+def test_cli_profile_keeps_the_calibrated_interval(small_data, tmp_path, capsys):
+    """``--profile`` used to replace the robust 95 % intervals with profile ones, in the
+    report and in fit.json, while the ± column kept the robust standard error (issue:
+    intervals about 6× narrower that missed the truth). Now both are there."""
+    out = tmp_path / "fit.json"
+    base = tmp_path / "base.json"
+    assert cli_main(["fit", small_data, "--fix", "v_stick=1e-5", "--json", str(base)]) == 0
+    assert cli_main(["fit", small_data, "--fix", "v_stick=1e-5", "--profile", "mu_max", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    js, b = json.loads(out.read_text()), json.loads(base.read_text())
+    p = js["parameters"]["mu_max"]
+    assert p["ci95"] == b["parameters"]["mu_max"]["ci95"]
+    assert p["ci95_profile"] is not None and p["ci95_profile"] != p["ci95"]
+    assert js["profiles"]["mu_max"]["ci95"] == p["ci95_profile"]
+    assert "profile 95%" in text and "[[Profiles]]" in text
+
+
 def test_cli_fit_nothing_usable_exits_2(tmp_path, capsys):
     short = _traces([(2.13, 5, 100)], travel_um=0.3)[0]
     short.write(tmp_path / "short")
@@ -1641,16 +1658,44 @@ def test_recovery_90nm_converges(coating):
 # ----------------------------------------------------------------------------- profiles, multistart
 @pytest.mark.parametrize("name", ["tau", "A"])
 def test_profile_likelihood(small_fit, name):
+    """The profile never changes the result it is computed from; a result that carries it
+    shows its interval beside the calibrated one (report and JSON), and the crossing is
+    refined: the two points that bracket the threshold on each closed side lie within a
+    quarter of the grid spacing of each other after the bisections."""
+    before = json.dumps(small_fit.to_json(), default=str)
     pr = small_fit.profile(name, n_points=5, span=3.0)
-    est = small_fit[name].value
-    assert not pr.flat
-    assert pr.delta_chi2.min() == pytest.approx(0.0, abs=1e-6)
+    assert json.dumps(small_fit.to_json(), default=str) == before and not small_fit.profiles
+    assert not pr.flat and len(pr.failed) == 0
+    if pr.better:
+        # measured for A: Δχ² −1.57 at A = 0.0225 (the fit's 0.0143 a local minimum of a
+        # valley with kinks); then the interval is about that point, and the result says so
+        assert pr.delta_chi2.min() == pytest.approx(pr.better[1]) and pr.better[1] < 0
+        assert "a better fit lies at" in small_fit.with_profiles(pr).report()
+        assert "local" in small_fit.with_profiles(pr)[name].flag
+        est = pr.better[0]
+    else:
+        assert pr.delta_chi2.min() == pytest.approx(0.0, abs=1e-6)
+        est = small_fit[name].value
     # Δχ² grows away from the optimum on both sides
     i0 = int(np.argmin(np.abs(pr.values - est)))
     assert pr.delta_chi2[0] > 0 and pr.delta_chi2[-1] > 0 and i0 not in (0, len(pr.values) - 1)
-    if pr.ci95 is not None:
-        assert pr.ci95[0] < est < pr.ci95[1]
-    assert name in small_fit.to_json()["profiles"]
+    assert pr.ci95 is not None
+    for side, bound in zip((-1, 1), pr.ci95):
+        if bound is None:
+            continue
+        assert (bound - est) * side > 0
+        inside = pr.values[(pr.values - bound) * side < 0]
+        outside = pr.values[(pr.values - bound) * side > 0]
+        # (the points nearest the crossing on either side of it, after the bisections)
+        width = abs(outside[np.argmin(np.abs(outside - bound))] - inside[np.argmin(np.abs(inside - bound))])
+        assert width < 0.5 * np.diff(pr.values).max(), (side, width)
+    carried = small_fit.with_profiles(pr)
+    p = carried[name]
+    assert p.ci95 == small_fit[name].ci95 and p.ci95_profile == pr.ci95
+    js = carried.to_json()
+    assert name in js["profiles"] and js["parameters"][name]["ci95"] == list(small_fit[name].ci95)
+    assert js["parameters"][name]["ci95_profile"] == list(pr.ci95)
+    assert "profile 95%" in carried.report()
 
 
 def test_an_unconverged_fit_flags_its_parameters(small_traces):
