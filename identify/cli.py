@@ -1,8 +1,19 @@
 """Command line: ``python -m identify <command> ...``, a thin layer over the library.
 
-Every command is a function ``_cmd_<name>(args) -> int``; :func:`main` turns bad input
-(``ValueError`` and its subclasses, missing files) into one ``error:`` line on stderr
-and exit status 2, without a traceback.
+Every command is a function ``_cmd_<name>(args) -> int``. Exit status:
+
+* 0: done;
+* 1: done in part (a command that says which part);
+* 2: bad input: one ``error:`` line on stderr naming the file, line or parameter and the
+  rule it broke (an error the toolkit raised on purpose: ``ValueError`` and its
+  subclasses raised by a ``raise`` of ours, missing or unreadable files);
+* 3: ``fit`` finished, but its result is not one to use as it stands (not converged,
+  reduced χ² above 2, a parameter at a bound, μmin ≥ μmax): the report's first line
+  says why; the report and the JSON are written all the same;
+* 4: an internal error, a fault of the toolkit rather than of the input: one line says
+  so, names the exception, and where its traceback was written; files already written
+  are kept;
+* 130: interrupted.
 """
 
 from __future__ import annotations
@@ -275,6 +286,10 @@ def _run_fit(args, data, true_values=None) -> int:
     if args.plots:
         paths = res.save_plots(args.plots)
         print(f"wrote {len(paths)} figure file(s) to {args.plots}")
+    if res.concerns:
+        print(f"fit: not a result to use as it stands ({'; '.join(res.concerns)}); exit status 3",
+              file=sys.stderr)
+        return 3
     return 0
 
 
@@ -420,10 +435,60 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as err:
-        # FitError, ParameterError and TraceFormatError are ValueErrors
+    except (FileNotFoundError, IsADirectoryError, PermissionError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except ValueError as err:
+        # FitError, ParameterError and TraceFormatError are ValueErrors; so is what a
+        # builtin or a library raises on a bug of ours (``min()`` of an empty sequence):
+        # only an error some ``raise`` of ours made on purpose blames the input
+        if not _raised_on_purpose(err):
+            return _internal_error(err)
         print(f"error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Exception as err:  # noqa: BLE001 - the last line of defence: no traceback on the terminal
+        return _internal_error(err)
+
+
+def _raised_on_purpose(err: BaseException) -> bool:
+    """Whether ``err`` comes from a ``raise`` statement in the toolkit's own code (the
+    innermost frame of its traceback is ours and its line raises): a message written for
+    the user, as opposed to an exception out of a builtin or a library."""
+    import traceback
+
+    frames = traceback.extract_tb(err.__traceback__)
+    if not frames:
+        return True
+    last = frames[-1]
+    ours = any(f"{sep}{pkg}{sep}" in last.filename for pkg in ("identify", "design") for sep in ("/", "\\"))
+    return ours and (last.line or "").lstrip().startswith("raise")
+
+
+def _internal_error(err: BaseException) -> int:
+    import tempfile
+    import time
+    import traceback
+
+    path = None
+    try:
+        fd, path = tempfile.mkstemp(prefix=f"nanofrictor-error-{time.strftime('%Y%m%d-%H%M%S')}-", suffix=".txt")
+        with open(fd, "w") as fh:
+            fh.write(f"nanofrictor {_version()}: {' '.join(sys.argv)}\n\n")
+            traceback.print_exception(type(err), err, err.__traceback__, file=fh)
+    except OSError:
+        path = None
+    print(f"internal error (a fault of nanofrictor, not of your input): {type(err).__name__}: {err}"
+          + (f"; traceback in {path}" if path else "") + "; files already written are kept", file=sys.stderr)
+    return 4
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("nanofrictor")
+    except Exception:  # noqa: BLE001
+        return "(version unknown)"

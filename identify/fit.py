@@ -24,6 +24,7 @@ from .model import Model
 from .missed import missed_slips
 from .nlp import Problem
 from .params import parameter_set, spec
+from .report import SUSPECT_REDCHI
 from .rundata import RunData, _run_data
 from .sequence import _ambiguous_triggers, _batch_triggers, _excess, _misfit_triggers, _with_triggers
 
@@ -352,7 +353,8 @@ def _start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict
     return start, "; ".join(f"{o} for {', '.join(ns)}" for o, ns in groups.items())
 
 
-SUSPECT_REDCHI = 2.0  # a solution's reduced χ² above which the fit tries another start
+# (SUSPECT_REDCHI: a solution's reduced χ² above which the fit tries another start, and
+# its result is reported as not explained by the noise)
 # After inserted slips, a fresh solve that did not converge is still taken as it is when
 # its χ² is within the noise (below this upper quantile of χ² with the fit's dof): the
 # solver stalls at kinked arcs (a slow slip grazing the stop speed) as well as in another

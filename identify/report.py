@@ -31,6 +31,7 @@ errors), where the solver's own stall test asks 0.01."""
 NEAR_SOLUTION_FEAS_UM = 1e-3  # 1 nm of continuity: 1/90 of the camera noise
 Z95 = 1.959963984540054
 CHI2_95 = 3.841458820694124  # 95 % quantile of χ² with 1 degree of freedom
+SUSPECT_REDCHI = 2.0  # reduced χ² above which a result is reported as not explained by the noise
 MAX_EXTEND = 6  # doublings of a profile's walk past its grid before a side is called open
 REFINE_STEPS = 3  # bisections of the bracket where a profile crosses the 95 % threshold
 # a profile point this much below the fit's χ² is a better fit (the solvers' own stall
@@ -157,6 +158,34 @@ class FitResult:
     def free(self) -> list:
         return [n for n, p in self.parameters.items() if p.free]
 
+    @property
+    def concerns(self) -> list:
+        """Why this result is not one to use as it stands (empty: none found): the solver
+        did not converge, the noise does not explain the misfit (reduced χ² above
+        ``SUSPECT_REDCHI``), a free parameter sits at a bound, or the values contradict
+        the model's physics (μmin ≥ μmax). The report's first line and ``identify fit``'s
+        exit status (3) say so."""
+        out = []
+        s = self.solver
+        if not s.get("success", True):
+            out.append(f"the solver did not converge ({s.get('status')})")
+        if self.dof > 0 and np.isfinite(self.redchi) and self.redchi > SUSPECT_REDCHI:
+            out.append(f"reduced chi-square {self.redchi:.3g}: the model does not explain the data to their noise")
+        at_bound = [n for n, p in self.parameters.items() if p.free and (p.flag or "").startswith("at a bound")]
+        if at_bound:
+            out.append(f"{', '.join(at_bound)} at a bound of the search")
+        v = self.values
+        if "mu_min" in v and "mu_max" in v and v["mu_min"] >= v["mu_max"]:
+            out.append(f"mu_min {v['mu_min']:.4g} >= mu_max {v['mu_max']:.4g}")
+        return out
+
+    def headline(self) -> str:
+        """One line: whether the fit is one to use, and if not, why."""
+        if self.concerns:
+            return "!! NOT A RESULT TO USE AS IT STANDS: " + "; ".join(self.concerns)
+        return (f"Fit converged ({self.solver.get('status')}), reduced chi-square {self.redchi:.4g}: "
+                "the values below are estimates with calibrated intervals")
+
     def uncertainty(self, covariance: str) -> dict:
         """Standard errors and 95 % intervals of the free parameters under another
         covariance than the fit's option (``robust``, ``cluster`` or ``model``, see
@@ -173,6 +202,7 @@ class FitResult:
     def report(self, show_correlations: float = 0.5) -> str:
         s = self.solver
         lines = [
+            self.headline(),
             "[[Fit Statistics]]",
             f"    model              = hybrid stick/slip, {self.law} aging law",
             f"    coating            = {self.coating} (fixed parameters from its preset)",
@@ -280,6 +310,7 @@ class FitResult:
             n_observations=self.n_observations, nlp_size=self.nlp_size, solver=self.solver,
             multistart=self.multistart, runs=self.runs, timing=self.timing, start=self.start_source,
             profiles={n: p.to_json() for n, p in self.profiles.items()},
+            concerns=self.concerns,
         )
 
     # ---------------------------------------------------------------- more work

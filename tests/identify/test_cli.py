@@ -59,3 +59,33 @@ def test_travel_beyond_range_warns(tmp_path, capsys):
     argv = [a if a != "5" or i != BASE.index("--travel-um") + 1 else "120" for i, a in enumerate(BASE)]
     code = main(argv + ["--out", str(tmp_path / "long")])
     assert code == 0 and "warning" in capsys.readouterr().err.lower()
+
+
+def test_an_internal_error_is_not_blamed_on_the_input(monkeypatch, capsys):
+    """A bug of ours that raises a ValueError from a builtin (the diagnosis once died
+    with ``error: min() arg is an empty sequence`` and exit 2, as if the input were bad)
+    is reported as the toolkit's fault: exit 4, one line, the traceback in a file."""
+    import identify.cli as cli
+
+    def broken(args):
+        return min([])
+
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    for action in parser._subparsers._group_actions[0].choices.values():
+        action.set_defaults(func=broken)
+    code = cli.main(["fit", "nowhere", "--json", "unused.json"])
+    err = capsys.readouterr().err
+    assert code == 4
+    assert err.startswith("internal error (a fault of nanofrictor, not of your input): ValueError")
+    assert "Traceback" not in err
+    path = err.split("traceback in ")[1].split(";")[0]
+    assert "min() arg is an empty sequence" in open(path).read()
+
+
+def test_an_error_raised_on_purpose_blames_the_input(capsys):
+    import identify.cli as cli
+
+    code = cli.main(["fit", "/no/such/folder/anywhere", "--json", "unused.json"])
+    err = capsys.readouterr().err
+    assert code == 2 and "error: /no/such/folder/anywhere" in err and "internal" not in err

@@ -1551,6 +1551,27 @@ def test_cli_profile_keeps_the_calibrated_interval(small_data, tmp_path, capsys)
     assert "profile 95%" in text and "[[Profiles]]" in text
 
 
+def test_cli_fit_not_to_use_says_so_first_and_exits_3(small_data, tmp_path, capsys):
+    """τ held by its bounds far from where the data put it: the fit ends with τ at a bound
+    and a large misfit; the report's first line says it is not a result to use, the JSON
+    lists the concerns, and the exit status is 3 (written all the same)."""
+    out = tmp_path / "fit.json"
+    code = cli_main(["fit", small_data, "--fix", "v_stick=1e-5", "--bound", "tau=0.5:2", "--json", str(out)])
+    captured = capsys.readouterr()
+    assert code == 3
+    assert captured.out.splitlines()[0].startswith("!! NOT A RESULT TO USE")
+    first = captured.out.splitlines()[0]
+    assert "at a bound" in first and "tau" in first and "reduced chi-square" in first
+    js = json.loads(out.read_text())
+    assert any("tau" in c for c in js["concerns"])
+    assert "exit status 3" in captured.err
+
+
+def test_a_converged_fit_says_so_first(small_fit):
+    assert small_fit.concerns == []
+    assert small_fit.report().splitlines()[0].startswith("Fit converged")
+
+
 def test_cli_fit_nothing_usable_exits_2(tmp_path, capsys):
     short = _traces([(2.13, 5, 100)], travel_um=0.3)[0]
     short.write(tmp_path / "short")
