@@ -305,6 +305,9 @@ def prepare_runs(items, *, coating: str | None = None, noise_m: float | None = N
 
 
 REDUCED_Z = 1.96  # a reduced-analysis value starts the fit only if its 95 % interval excludes 0
+# ... and μmax alone, when the others are undetermined, if its standard error is below
+# this: the static friction has saturated within the rests recorded
+MU_MAX_SATURATED_SE = 0.02
 
 
 def _start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict, str]:
@@ -336,6 +339,16 @@ def _start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict
                 log.info("reduced-analysis start not used: %s undetermined", ", ".join(vague))
                 origin.update({n: f"preset ({', '.join(vague)} undetermined by the reduced analysis)"
                                for n in names})
+                # μmax alone, where the saturated static friction pins it and τ alone is
+                # undetermined: rests long against τ give μs ≈ μmax whatever τ is (the
+                # issue's case: the reduced analysis put μs at 0.738 in every run, the
+                # start took the preset's 0.796 because τ alone was undetermined). Not when
+                # μmin is undetermined too: over two rest times μmax then moves with it
+                # (the measured failure above: μmax 0.83 ± 0.0009 with μmin 0.004 ± 0.24)
+                se = fitted.stderr.get("mu_max", np.nan)
+                if vague == ["tau"] and "mu_max" in names and np.isfinite(se) and se < MU_MAX_SATURATED_SE:
+                    start["mu_max"] = float(fitted.parameters["mu_max"])
+                    origin["mu_max"] = f"reduced analysis (saturated μs; {', '.join(vague)} undetermined)"
     except Exception as err:  # the start is a convenience, never a reason to fail
         log.info("reduced-analysis start unavailable: %s", err)
     for n, v in opts.start.items():

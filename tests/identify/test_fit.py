@@ -1433,7 +1433,9 @@ def test_start_takes_the_reduced_analysis_only_where_it_determines_it(monkeypatc
     for bad in (dict(tau=np.nan), {}):  # a NaN or a missing standard error: not determined
         fitted.stderr = dict(mu_max=0.0009, mu_min=0.07, **bad)
         start, source = _start_values(runs, law, preset, opts)
-        assert start == {n: preset[n] for n in opts.free} and "tau undetermined" in source
+        # τ alone undetermined: μmax, pinned by the saturated μs, still starts the fit
+        assert start == {**{n: preset[n] for n in opts.free}, "mu_max": 0.83} and "tau undetermined" in source
+        assert "saturated" in source
 
 
 @pytest.mark.parametrize("kwargs, match", [
@@ -1948,3 +1950,33 @@ def test_a_run_that_steps_between_its_slips_is_not_fitted_for_them_under_the_sti
     (why,) = [r["reason"] for r in res.runs if r["name"] == steps.name and not r["used"]]
     assert "it steps between its slips" in why and "the model predicts stick-slip" in why
     assert "LEFT OUT: the block moves during its plateaus" in res.report()
+
+
+def test_start_takes_the_saturated_mu_max_when_tau_is_undetermined():
+    """The issue's first situation at its conditions (8 FOTAS runs, 560 steps, 90 nm,
+    μmax 0.74, μmin 0.45, τ 55 ms, A 0.012, a fully aged initial contact): the reduced
+    analysis cannot fix τ, and the start used to take the preset's μmax 0.796 for that
+    alone. The saturated static friction pins μmax: the start now takes it from the data
+    (measured 0.765 here), and says where it came from."""
+    from identify.fit import _start_values
+    from identify.laws import get_law
+
+    truth = dict(mu_max=0.74, mu_min=0.45, tau=0.055, A=0.012)
+    conds = [(2.13, 5, 10), (2.13, 8, 10), (2.13, 20, 10), (2.13, 12, 100), (2.13, 25, 100), (2.13, 30, 100),
+             (20.3, 50, 10), (20.3, 60, 10)]
+    traces = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for i, (k, nb, fp) in enumerate(conds):
+            run = simulate("FOTAS", spring_constant_N_per_m=k, normal_load_uN=nb, step_frequency_Hz=fp,
+                           travel_um=560 * 0.046, stick_speed_m_per_s=V_STICK, params=truth,
+                           initial_state=truth["mu_max"], options=SimulationOptions(record=False))
+            traces.append(run.sample(noise_nm=90, seed=i, name=f"k{k}_n{nb}_f{fp}"))
+    evs, excluded, coating = prepare_runs(traces)
+    assert not excluded
+    runs = [_run_data(ev) for ev in evs]
+    start, origin = _start_values(runs, get_law("exponential"), parameter_set("FOTAS"),
+                                  FitOptions(fixed={"v_stick": V_STICK}))
+    assert abs(start["mu_max"] - truth["mu_max"]) < 0.03
+    assert "saturated" in origin and "tau undetermined" in origin
+    assert start["tau"] == parameter_set("FOTAS")["tau"]  # (τ itself: the staged start's to find)
