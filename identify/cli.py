@@ -220,6 +220,11 @@ def _add_fit_arguments(p, json_required: bool):
     p.add_argument("--bound", action="append", metavar="NAME=LO:HI", help="bounds of a free parameter")
     p.add_argument("--start", action="append", metavar="NAME=VALUE", help="start value of a free parameter")
     p.add_argument("--free-offset", action="store_true", help="estimate a per-run elongation zero offset")
+    p.add_argument("--stick-speed", default="check", metavar="check|auto|off|M_PER_S",
+                   help="the stick option: a speed in m/s fixes v_stick (as --fix v_stick=...); otherwise "
+                        "'check' (default) stops at once where the equations as written creep but the data "
+                        "stick-slip, saying what to do; 'auto' then takes v_stick = 1e-5 m/s and names it in the "
+                        "report; 'off' fits as written regardless")
     p.add_argument("--multistart", type=int, default=0, help="extra random starts (pyPESTO-style summary)")
     p.add_argument("--seed", type=int, default=None, help="seed of the multistart")
     p.add_argument("--sequence-trials", type=int, default=None, metavar="N",
@@ -259,11 +264,27 @@ def _fit_options(args):
     from .fit import DEFAULT_FREE, FitOptions
 
     free = tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else DEFAULT_FREE
+    stick = _stick_mode(args)  # (first: a speed given there joins --fix)
     return FitOptions(law=args.law, free=free, fixed=_parse_params(args.fix, "--fix"),
                       bounds=_parse_bounds(args.bound), start=_parse_params(args.start, "--start"),
                       free_offset=args.free_offset, multistart=args.multistart, seed=args.seed,
-                      solver=args.solver, trigger=args.trigger,
+                      solver=args.solver, trigger=args.trigger, stick_speed=stick,
                       **({} if args.sequence_trials is None else {"sequence_trials": args.sequence_trials}))
+
+
+def _stick_mode(args) -> str:
+    """``--stick-speed``: a mode, or a speed that fixes v_stick (added to ``args.fix``)."""
+    value = str(getattr(args, "stick_speed", "check"))
+    if value in ("check", "auto", "off"):
+        return value
+    try:
+        speed = float(value)
+    except ValueError:
+        raise CLIError(f"--stick-speed {value}: expected check, auto, off or a speed in m/s") from None
+    if any(item.split("=")[0].strip() == "v_stick" for item in (args.fix or [])):
+        raise CLIError("--stick-speed and --fix v_stick both given: give one")
+    args.fix = [*(args.fix or []), f"v_stick={speed!r}"]
+    return "check"
 
 
 def _run_fit(args, data, true_values=None) -> int:
@@ -457,14 +478,19 @@ def _raised_on_purpose(err: BaseException) -> bool:
     """Whether ``err`` comes from a ``raise`` statement in the toolkit's own code (the
     innermost frame of its traceback is ours and its line raises): a message written for
     the user, as opposed to an exception out of a builtin or a library."""
+    import linecache
     import traceback
 
+    if type(err).__module__.split(".")[0] in ("identify", "design"):
+        return True  # (our own error classes: FitError, CLIError, TraceFormatError, ...)
     frames = traceback.extract_tb(err.__traceback__)
     if not frames:
         return True
     last = frames[-1]
     ours = any(f"{sep}{pkg}{sep}" in last.filename for pkg in ("identify", "design") for sep in ("/", "\\"))
-    return ours and (last.line or "").lstrip().startswith("raise")
+    # (a raise statement spread over lines reports one of them: look a few lines up)
+    lines = [linecache.getline(last.filename, n).lstrip() for n in range(max(last.lineno - 4, 1), last.lineno + 1)]
+    return ours and any(line.startswith("raise") for line in lines)
 
 
 def _internal_error(err: BaseException) -> int:

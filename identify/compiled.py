@@ -77,24 +77,34 @@ _stderr_lock = threading.RLock()  # (re-entrant: a build may itself call compile
 
 
 @contextmanager
-def _without_event_notice() -> Iterator[None]:
-    """Hold what CasADi writes to stderr meanwhile and pass it on without
-    :data:`EVENT_NOTICE` lines; anything else it wrote is kept, in order."""
-    global _notice_logged
+def held_stderr(then: Callable[[str], None]) -> Iterator[None]:
+    """Hold what is written to ``sys.stderr`` meanwhile (CasADi writes through it) and
+    hand it to ``then`` afterwards, the redirection undone. One redirection at a time:
+    two threads' interleaved swaps, e.g. tasks of a dask worker, could leave sys.stderr
+    pointing at a discarded buffer."""
     held = io.StringIO()
-    # (one redirection at a time: two threads' interleaved swaps, e.g. tasks of a dask
-    # worker, could leave sys.stderr pointing at a discarded buffer)
     with _stderr_lock:
         try:
             with contextlib.redirect_stderr(held):
                 yield
         finally:
-            kept = [line for line in held.getvalue().splitlines(keepends=True) if EVENT_NOTICE not in line]
-            if len(kept) < len(held.getvalue().splitlines()) and not _notice_logged:
-                _notice_logged = True
-                log.debug("CasADi: %s (shown once)", EVENT_NOTICE)
-            if kept and sys.stderr is not None:
-                sys.stderr.write("".join(kept))
+            then(held.getvalue())
+
+
+def _pass_on_without_notice(text: str) -> None:
+    global _notice_logged
+    kept = [line for line in text.splitlines(keepends=True) if EVENT_NOTICE not in line]
+    if len(kept) < len(text.splitlines()) and not _notice_logged:
+        _notice_logged = True
+        log.debug("CasADi: %s (shown once)", EVENT_NOTICE)
+    if kept and sys.stderr is not None:
+        sys.stderr.write("".join(kept))
+
+
+def _without_event_notice():
+    """What CasADi writes to stderr meanwhile, passed on without :data:`EVENT_NOTICE` lines;
+    anything else it wrote is kept, in order."""
+    return held_stderr(_pass_on_without_notice)
 
 
 def compiled(build: Callable[[dict], ca.Function], tag: str = "f") -> ca.Function:

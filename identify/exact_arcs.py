@@ -27,16 +27,14 @@ differentiated) is built once and mapped over every arc that shares it.
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import io
 import logging
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
-from .compiled import _stderr_lock
+from .compiled import held_stderr
 from .model import LENGTH_UNIT, SPEED_UNIT, TIME_UNIT, Model, slip_dae
 
 __all__ = ["EXACT_ABSTOL", "EXACT_RELTOL", "GRAZING_REASONS", "ExactArcs", "exact_arcs", "grazing_flags"]
@@ -316,21 +314,17 @@ class ExactArcs:
         return y, J, ok
 
 
-@contextlib.contextmanager
 def _held_stderr(what: str):
     """Keep what SUNDIALS and CasADi print when an integration fails (the solver's
     message and every input of each Function it failed in, tens of lines per arc) off
     the user's terminal: the arc is integrated again or counted as failed, and the
     message goes to the debug log."""
-    held = io.StringIO()
-    with _stderr_lock:
-        try:
-            with contextlib.redirect_stderr(held):
-                yield
-        finally:
-            text = held.getvalue().strip()
-            if text:
-                log.debug("%s: %s", what, text.splitlines()[0])
+
+    def then(text: str) -> None:
+        if text.strip():
+            log.debug("%s: %s", what, text.strip().splitlines()[0])
+
+    return held_stderr(then)
 
 
 def _mapped(f: ca.Function, n: int, threads: int) -> ca.Function:

@@ -183,6 +183,7 @@ class FitOptions:
     free_phase: bool = False
     arc_start: str = "aged"
     trigger: str = "uniform"
+    stick_speed: str = "check"
 
     def __post_init__(self):
         get_law(self.law)
@@ -231,9 +232,37 @@ class FitOptions:
             raise ValueError(f"covariance = {self.covariance!r}: choose 'robust', 'cluster' or 'model'")
         if self.solver not in ("gauss-newton", "ipopt"):
             raise ValueError(f"solver = {self.solver!r}: choose 'gauss-newton' or 'ipopt'")
+        if self.stick_speed not in ("check", "auto", "off"):
+            raise ValueError(f"stick_speed = {self.stick_speed!r}: choose 'check', 'auto' or 'off'")
 
 
 # ----------------------------------------------------------------------------- data
+def _decide_stick(runs_ev, model, values, opts, final_opts, say, stick_choice, auto_speed):
+    """The stick option, when the caller did not give one (:mod:`identify.stick_choice`):
+    with ``stick_speed='check'`` a fit the equations as written cannot make stops at once
+    with what to do; with ``'auto'`` the option the data's regimes allow is taken and
+    named. Returns (opts, final_opts, a note for the report or None)."""
+    choice = stick_choice(runs_ev, model, values, options=(0.0, auto_speed) if opts.stick_speed == "auto" else (0.0,),
+                          say=say)
+    if not choice.mismatch(0.0):
+        return opts, final_opts, ("as written (v_stick = 0): checked, the model stick-slips where the data do"
+                                  if choice.n_stick_slip else None)
+    if opts.stick_speed == "check":
+        raise FitError(f"the model as written (v_stick = 0) creeps in {choice.text(0.0)}: it cannot fit their "
+                       f"slips. Fit with the stick option (--fix v_stick={auto_speed:g}, or "
+                       f"FitOptions(fixed={{'v_stick': {auto_speed:g}}})), or let the fit choose by the data's "
+                       "regimes (--stick-speed auto); a trace does not say which the truth had")
+    if choice.mismatch(auto_speed):
+        raise FitError(f"neither stick option reproduces the data's regimes at the start values: as written the "
+                       f"model creeps in {choice.text(0.0)}, with v_stick = {auto_speed:g} m/s in "
+                       f"{choice.text(auto_speed)}. Give a start nearer the data (--start) or fix v_stick yourself")
+    fixed = {**opts.fixed, "v_stick": auto_speed}
+    note = (f"v_stick = {auto_speed:g} m/s, chosen by the data's regimes: as written the model creeps in "
+            f"{choice.text(0.0)}; with the stick option in {len(choice.creeping[auto_speed])}")
+    say(f"stick option: {note}")
+    return replace(opts, fixed=fixed), replace(final_opts, fixed=fixed), note
+
+
 def _check_left_out(result, model, prob, say) -> None:
     """The runs left out for their regime, simulated at the fitted values: their entry in
     ``result.runs`` gains ``model_regime`` and ``model_slip_um``, and their reason says
@@ -673,6 +702,14 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     law = get_law(opts.law)
     model = Model(law)
     preset = parameter_set(coating, {n: v for n, v in opts.fixed.items()})
+    stick_note = None
+    said = any("v_stick" in d for d in (opts.fixed, opts.start, opts.bounds)) or "v_stick" in opts.free
+    if not said and opts.stick_speed != "off":
+        from .stick_choice import STICK_SPEED_AUTO, stick_choice
+
+        opts, final_opts, stick_note = _decide_stick(runs_ev, model, {**preset, **opts.start}, opts, final_opts,
+                                                     say, stick_choice, STICK_SPEED_AUTO)
+        preset = parameter_set(coating, {n: v for n, v in opts.fixed.items()})
     from .regime_check import RegimeRun, steps_of
 
     run_data = []
@@ -831,6 +868,8 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     # rejected, which a solve that stalls or fails may owe to them
     n_failed = prob.arcs.n_failed - failed0
     result.solver["arcs_failed"] = int(n_failed)
+    if stick_note:
+        result.solver["stick_option"] = stick_note
     if n_failed and prob.arcs.last_failure is not None:
         result.solver["arc_failure"] = prob.arcs.last_failure[1]
     return result

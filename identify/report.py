@@ -219,6 +219,7 @@ class FitResult:
               if s.get("ipopt_status") else []),
             *(["    triggers           = intervals (after the uniform encoding's fit); no trigger "
                "residuals in the chi-square or the covariance"] if s.get("trigger") == "interval" else []),
+            *([f"    stick option       = {s['stick_option']}"] if s.get("stick_option") else []),
             f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved, "
             f"{s.get('slips_inserted', 0)} missed slip(s) inserted, "
             f"{s.get('slips_removed', 0)} spurious slip(s) removed by the fit",
