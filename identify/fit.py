@@ -101,6 +101,12 @@ class FitOptions:
         Threads for the arc evaluations.
     multistart : int
         Extra starts drawn around the first (log-normal, 30 %) with ``seed``.
+    auto_starts : int
+        When the solution still looks wrong after the start before or after staging was
+        tried (not converged, reduced χ² above 2, a parameter at a bound), this many more
+        starts spread over a decade either side (log-scaled parameters) or ±40 % (the
+        others), a Latin hypercube seeded by ``seed``; the best solution is kept and the
+        report's start line says so. 0 turns it off.
     sequence_trials : int
         Trials of the last mode-sequence pass (:func:`identify.sequence._misfit_triggers`:
         local changes where the model's triggers misfit, each a short re-solve of the
@@ -184,6 +190,7 @@ class FitOptions:
     arc_start: str = "aged"
     trigger: str = "uniform"
     stick_speed: str = "check"
+    auto_starts: int = 4
 
     def __post_init__(self):
         get_law(self.law)
@@ -217,6 +224,8 @@ class FitOptions:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: must be a positive integer")
         if self.multistart < 0:
             raise ValueError(f"multistart = {self.multistart!r}: must be >= 0")
+        if self.auto_starts < 0:
+            raise ValueError(f"auto_starts = {self.auto_starts!r}: must be >= 0")
         if self.sequence_trials < 0:
             raise ValueError(f"sequence_trials = {self.sequence_trials!r}: must be >= 0")
         if self.arc_jacobian not in ("forward", "central", "exact"):
@@ -395,6 +404,10 @@ def _start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict
     return start, "; ".join(f"{o} for {', '.join(ns)}" for o, ns in groups.items())
 
 
+AUTO_SEED = 20261127  # the spread starts' seed when the options give none (a fit repeats itself)
+# ½χ²: a spread start's solution replaces the fit's only if lower by more (the tolerance
+# of the loose solves that decide between starts, LOOSE_STAT_TOL)
+SAME_SOLUTION_TOL = 0.25
 # (SUSPECT_REDCHI: a solution's reduced χ² above which the fit tries another start, and
 # its result is reported as not explained by the noise)
 # After inserted slips, a fresh solve that did not converge is still taken as it is when
@@ -643,6 +656,37 @@ def _after_insertion(prob, w_warm, fresh_start: dict, n_added: int, opts, restar
     return sol
 
 
+def _at_bound(prob, res) -> str:
+    """'' unless a free parameter of the solution ``res`` sits at a bound of the search
+    (then: which ones)."""
+    if not np.isfinite(res.get("f", np.inf)):
+        return ""
+    tm = prob.theta
+    th = np.asarray(res["w"][: prob.n_theta], float)
+    rng = np.maximum(tm.hi - tm.lo, 1.0)
+    at = [n for n, t, lo, hi, r in zip(tm.names, th, tm.lo, tm.hi, rng) if min(t - lo, hi - t) < 1e-6 * r]
+    return f"{', '.join(at)} at a bound" if at else ""
+
+
+def _spread_starts(prob, w_ref: np.ndarray, n: int, rng) -> list:
+    """``n`` starts spread over the plausible range of every free parameter (a Latin
+    hypercube: each parameter's range cut into ``n`` strata, one start in each): a
+    decade either side of ``w_ref`` for the log-scaled ones, ±40 % of its value for the
+    others, inside the search bounds; the plateaus and triggers as in ``w_ref``, the arc
+    starts synced to each start's parameters."""
+    tm = prob.theta
+    k = prob.n_theta
+    out = []
+    u = (rng.permuted(np.tile(np.arange(n), (k, 1)), axis=1).T + rng.random((n, k))) / n  # (n × k) in [0, 1)
+    th0 = np.asarray(w_ref[:k], float)
+    half = np.where(tm.log, np.log(10.0), 0.4 * np.maximum(np.abs(th0), 1e-3))
+    for row in u:
+        w = np.array(w_ref, float)
+        w[:k] = np.clip(th0 + (2 * row - 1) * half, tm.lo + 1e-9, tm.hi - 1e-9)
+        out.append(prob.sync_start_positions(w) if prob.E else w)
+    return out
+
+
 def _suspect(prob, res, noise_p: float | None = None) -> str:
     """Why a solution looks wrong ('' if it does not): the solver did not converge, or
     the frames' noise does not explain it (reduced χ² > SUSPECT_REDCHI). With
@@ -820,9 +864,10 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     def solve_from(w, label):
         say(f"solving: {label}")
         try:
-            results.append(prob.solve(w, loose=loose))
+            results.append(dict(prob.solve(w, loose=loose), start_w=w))
         except Exception as err:
-            results.append(dict(w=w, f=np.inf, status=f"failed: {err}", success=False, iterations=0, wall_s=0.0))
+            results.append(dict(w=w, f=np.inf, status=f"failed: {err}", success=False, iterations=0, wall_s=0.0,
+                                start_w=w))
 
     for i, w in enumerate(starts):
         solve_from(w, f"start {i + 1} of {len(starts)}")
@@ -851,6 +896,30 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     t_seq = time.perf_counter()
     prob, best = decide_sequence(prob, best, model, values, opts, say, fresh_start=start_given)
     t_seq = time.perf_counter() - t_seq
+    # still suspect once the mode sequence is decided (a wrong trigger makes a misfit no
+    # start cures, and the sequence decision cures it first): a seeded multistart spread
+    # over the plausible range, so that the answer is the best of several basins rather
+    # than the first one reached
+    why = _suspect(prob, best) or _at_bound(prob, best)
+    if why and opts.auto_starts:
+        auto = _spread_starts(prob, best["w"], opts.auto_starts,
+                              np.random.default_rng(opts.seed if opts.seed is not None else AUTO_SEED))
+        n_before = len(results)
+        for i, w in enumerate(auto):
+            say(f"solving: the fit looks wrong ({why}); spread start {i + 1} of {len(auto)}")
+            try:
+                results.append(dict(prob.solve(w), start_w=w))
+            except Exception as err:
+                results.append(dict(w=w, f=np.inf, status=f"failed: {err}", success=False, iterations=0,
+                                    wall_s=0.0, start_w=w))
+        new_best = min(results[n_before:], key=lambda r: r["f"])
+        kept = new_best["f"] < best["f"] - SAME_SOLUTION_TOL
+        start_source += (f" -> suspect ({why}), {len(auto)} spread starts: "
+                         + ("a better solution kept" if kept else "none better"))
+        if kept:
+            best = {**best, **{k: v for k, v in new_best.items() if k != "start_w"}}
+            th = np.atleast_1d(prob.theta.from_scaled(new_best["start_w"][: prob.n_theta]))
+            start = {n: float(v) for n, v in zip(prob.theta.names, th)}  # (the report's init)
     if final_opts.trigger == "interval":
         prob, best, how = _interval_solve(prob, best, final_opts, say)
         start_source += how
@@ -868,6 +937,9 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     # rejected, which a solve that stalls or fails may owe to them
     n_failed = prob.arcs.n_failed - failed0
     result.solver["arcs_failed"] = int(n_failed)
+    # (fixing or freeing a parameter can move the decided sequence, and with it the frames
+    # that count: the count of the detected sequence beside it says so)
+    result.solver["observations_detected"] = int(n_obs)
     if stick_note:
         result.solver["stick_option"] = stick_note
     if n_failed and prob.arcs.last_failure is not None:

@@ -207,7 +207,11 @@ class FitResult:
             f"    model              = hybrid stick/slip, {self.law} aging law",
             f"    coating            = {self.coating} (fixed parameters from its preset)",
             f"    runs used          = {self.n_runs} ({self.n_events} slips)",
-            f"    observations       = {self.n_observations} (plateau frames, triggers, creep means)",
+            f"    observations       = {self.n_observations} (plateau frames, triggers, creep means)"
+            + (f"; {s['observations_detected']} in the detected sequence: the mode sequence the fit decided "
+               f"changed which frames count (those taken while the block moved at a moved, inserted or "
+               f"removed slip)" if s.get("observations_detected", self.n_observations) != self.n_observations
+               else ""),
             f"    NLP                = {self.nlp_size['variables']} variables, {self.nlp_size['constraints']} "
             f"constraints, {self.nlp_size['residuals']} residuals",
             f"    solver             = {s['method']}: {s['status']} after {s['iterations']} "
