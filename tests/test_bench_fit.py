@@ -77,3 +77,20 @@ def test_growth_fits_the_slope_and_gives_each_step():
     linear = bench_fit.growth([dict(runs=n, wall_s=3.0 * n) for n in (2, 10, 20)])
     assert linear["growth_exponent"] == pytest.approx(1.0)
     assert bench_fit.growth([dict(runs=10, wall_s=27.0)]) == {}
+
+
+def test_a_clean_robustness_set_varies_more_than_the_noise():
+    """A clean set: friction inside the issue's ranges, 6-8 runs that stick-slip under it,
+    alternate initial contacts and frame phases, reproducible from its seed."""
+    truth, traces = bench_fit._clean_set(1, 0)
+    again, traces2 = bench_fit._clean_set(1, 0)
+    assert truth == again and [t.name for t in traces] == [t.name for t in traces2]
+    assert 0.5 <= truth["mu_max"] <= 0.9 and 0.3 <= truth["mu_min"] <= truth["mu_max"] - 0.08
+    assert 0.02 <= truth["tau"] <= 0.3 and 0.003 <= truth["A"] <= 0.03
+    assert 6 <= len(traces) <= 8
+    np.testing.assert_array_equal(traces[0].elongation, traces2[0].elongation)
+
+
+def test_a_robustness_row_that_failed_is_printed_as_such(capsys):
+    bench_fit._robust_line(dict(set="clean 9", wall_s=1.0, error="no run could be used"))
+    assert "failed: no run could be used" in capsys.readouterr().out
