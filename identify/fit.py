@@ -944,4 +944,35 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         result.solver["stick_option"] = stick_note
     if n_failed and prob.arcs.last_failure is not None:
         result.solver["arc_failure"] = prob.arcs.last_failure[1]
+    if opts.stick_speed == "auto" and stick_note and stick_note.startswith("as written") and result.concerns:
+        return _stick_by_likelihood(result, data, coating, final_opts, true_values, progress, say)
+    return result
+
+
+def _stick_by_likelihood(result, data, coating, final_opts, true_values, progress, say):
+    """``stick_speed='auto'`` where the regimes did not tell: the model stick-slips as
+    written where the data do, yet the fit as written is not one to use. The fit with the
+    stick option is made too and the lower χ² kept, the report naming both. (Measured on
+    the robustness benchmark's clean set 2, made with v_stick = 1e-5: every run
+    stick-slips as written too, at the preset and at the truth, and the fit as written
+    ended at reduced χ² 472.)"""
+    from .stick_choice import STICK_SPEED_AUTO
+
+    say(f"the fit as written is not one to use ({'; '.join(result.concerns)}); "
+        f"fitting with the stick option v_stick = {STICK_SPEED_AUTO:g} m/s as well")
+    try:
+        other = fit(data, coating=coating, options=replace(final_opts, fixed={**final_opts.fixed,
+                                                                                "v_stick": STICK_SPEED_AUTO}),
+                    true_values=true_values, progress=progress)
+    except FitError as err:
+        result.solver["stick_option"] += f"; with v_stick = {STICK_SPEED_AUTO:g} m/s the fit failed: {err}"
+        return result
+    if other.chi2 < result.chi2:
+        other.solver["stick_option"] = (f"v_stick = {STICK_SPEED_AUTO:g} m/s, chosen by the likelihood: as written "
+                                        f"the fit ended at chi-square {result.chi2:.6g} "
+                                        f"({'; '.join(result.concerns)}), with the option at {other.chi2:.6g}")
+        other.timing["total_s"] += result.timing["total_s"]
+        return other
+    result.solver["stick_option"] += (f"; with v_stick = {STICK_SPEED_AUTO:g} m/s the fit ended at chi-square "
+                                      f"{other.chi2:.6g}, not lower: kept as written")
     return result
