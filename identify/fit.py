@@ -246,11 +246,14 @@ class FitOptions:
 
 
 # ----------------------------------------------------------------------------- data
-def _decide_stick(runs_ev, model, values, opts, final_opts, say, stick_choice, auto_speed):
+def _decide_stick(runs_ev, model, values, opts, final_opts, say):
     """The stick option, when the caller did not give one (:mod:`identify.stick_choice`):
     with ``stick_speed='check'`` a fit the equations as written cannot make stops at once
     with what to do; with ``'auto'`` the option the data's regimes allow is taken and
     named. Returns (opts, final_opts, a note for the report or None)."""
+    from .stick_choice import STICK_SPEED_AUTO as auto_speed
+    from .stick_choice import stick_choice
+
     choice = stick_choice(runs_ev, model, values, options=(0.0, auto_speed) if opts.stick_speed == "auto" else (0.0,),
                           say=say)
     if not choice.mismatch(0.0):
@@ -749,10 +752,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     stick_note = None
     said = any("v_stick" in d for d in (opts.fixed, opts.start, opts.bounds)) or "v_stick" in opts.free
     if not said and opts.stick_speed != "off":
-        from .stick_choice import STICK_SPEED_AUTO, stick_choice
-
-        opts, final_opts, stick_note = _decide_stick(runs_ev, model, {**preset, **opts.start}, opts, final_opts,
-                                                     say, stick_choice, STICK_SPEED_AUTO)
+        opts, final_opts, stick_note = _decide_stick(runs_ev, model, {**preset, **opts.start}, opts, final_opts, say)
         preset = parameter_set(coating, {n: v for n, v in opts.fixed.items()})
     from .regime_check import RegimeRun, steps_of
 
@@ -861,7 +861,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     # full tolerance; the values of several starts are compared, so each is solved fully
     loose = opts.multistart == 0
 
-    def solve_from(w, label):
+    def solve_from(w, label, loose=loose):
         say(f"solving: {label}")
         try:
             results.append(dict(prob.solve(w, loose=loose), start_w=w))
@@ -906,12 +906,8 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
                               np.random.default_rng(opts.seed if opts.seed is not None else AUTO_SEED))
         n_before = len(results)
         for i, w in enumerate(auto):
-            say(f"solving: the fit looks wrong ({why}); spread start {i + 1} of {len(auto)}")
-            try:
-                results.append(dict(prob.solve(w), start_w=w))
-            except Exception as err:
-                results.append(dict(w=w, f=np.inf, status=f"failed: {err}", success=False, iterations=0,
-                                    wall_s=0.0, start_w=w))
+            # (the problem now carries the decided sequence: solved to the full tolerance)
+            solve_from(w, f"the fit looks wrong ({why}); spread start {i + 1} of {len(auto)}", loose=False)
         new_best = min(results[n_before:], key=lambda r: r["f"])
         kept = new_best["f"] < best["f"] - SAME_SOLUTION_TOL
         start_source += (f" -> suspect ({why}), {len(auto)} spread starts: "

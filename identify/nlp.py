@@ -311,7 +311,6 @@ class _ArcCallback(ca.Callback):
             J[:, :, ~ok] = Jfd.reshape(2, int((~ok).sum()), arcs.n_in).transpose(0, 2, 1)
         if inverse is not None:
             J = J[:, :, inverse]
-        self.counter["jac_arcs"] = self.counter.get("jac_arcs", 0) + reps.size
         return J.transpose(0, 2, 1).reshape(2, n * arcs.n_in)
 
     def has_jacobian(self):
