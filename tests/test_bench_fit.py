@@ -94,3 +94,18 @@ def test_a_clean_robustness_set_varies_more_than_the_noise():
 def test_a_robustness_row_that_failed_is_printed_as_such(capsys):
     bench_fit._robust_line(dict(set="clean 9", wall_s=1.0, error="no run could be used"))
     assert "failed: no run could be used" in capsys.readouterr().out
+
+
+def test_a_robustness_record_resumes_without_fitting(tmp_path, capsys):
+    """Sets a record file holds for the same seed and fit options are read back, not refitted:
+    a stopped run of the benchmark resumes where it stopped."""
+    from identify.fit import FitOptions
+
+    context = dict(kind="robustness", seed=0, fit_options=repr(FitOptions(stick_speed="auto")))
+    row = dict(set="clean 0", runs=7, wall_s=12.0, chi2=100.0, truth_chi2=100.5, reached=True,
+               intervals_hold=dict(mu_max=True, mu_min=True, tau=True, A=True), ok=True, status="Solve_Succeeded")
+    path = tmp_path / "rob.jsonl"
+    path.write_text(json.dumps(dict(row, context=context)) + "\n" + '{"cut by a st')
+    out = bench_fit.robustness(1, (), 0, record=str(path))
+    assert out["clean_ok"] == 1 and out["rows"][0]["wall_s"] == 12.0
+    assert "clean 0" in capsys.readouterr().out

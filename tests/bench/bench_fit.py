@@ -6,6 +6,7 @@ they print what they measure.
     python tests/bench/bench_fit.py speed [--runs 2,5,10,20] [--steps 2000]
     python tests/bench/bench_fit.py summary cal.jsonl
     python tests/bench/bench_fit.py robustness [--sets 20] [--effects all|none|ID,ID] [--seed 0]
+        [--workers 2] [--record rob.jsonl]
 
 calibration: each repeat simulates the design (the same noiseless runs every time), draws new 90 nm
 camera noise (seed = repeat), fits from a start 20 % off, and records whether each 95 %
@@ -401,23 +402,48 @@ def _judge(traces, truth: dict, seed: int, check_intervals: bool) -> dict:
     return row
 
 
-def robustness(n_sets: int, effects, seed: int) -> dict:
+def _robust_job(job):
+    """One robustness set, by name: ("clean", i, seed) or ("effect", id, seed)."""
+    kind, which, seed = job
+    if kind == "clean":
+        truth, traces = _clean_set(which, seed)
+        return dict(_judge(traces, truth, seed + which, True), set=f"clean {which}", runs=len(traces))
     from identify.params import parameter_set
     from identify.withheld import QUICK_CONDITIONS, withheld_dataset
 
-    rows = []
+    truth = {n: float(parameter_set("FOTAS")[n]) for n in FREE}
+    traces = withheld_dataset(which, conditions=QUICK_CONDITIONS, seed=seed)
+    return dict(_judge(traces, truth, seed, False), set=f"effect {which}", runs=len(traces))
+
+
+def robustness(n_sets: int, effects, seed: int, workers: int = 1, record: str | None = None) -> dict:
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from identify.fit import FitOptions
+
+    # a changed default refits: the record is keyed by the options a default fit uses
+    context = dict(kind="robustness", seed=seed, fit_options=repr(FitOptions(stick_speed="auto")))
+    done = {}
+    if record and os.path.exists(record):
+        done = {row["set"]: row for row in _record_rows(record) if row.get("context") == context}
+    jobs = [("clean", i, seed) for i in range(n_sets)] + [("effect", e, seed) for e in effects]
+    names = [f"{kind} {which}" for kind, which, _ in jobs]
     print(f"  {'set':<24} {'wall s':>7} {'chi2':>10} {'truth chi2':>10}  reached  intervals  status")
-    for i in range(n_sets):
-        truth, traces = _clean_set(i, seed)
-        row = dict(_judge(traces, truth, seed + i, True), set=f"clean {i}", runs=len(traces))
-        rows.append(row)
-        _robust_line(row)
-    for e in effects:
-        truth = {n: float(parameter_set("FOTAS")[n]) for n in FREE}
-        traces = withheld_dataset(e, conditions=QUICK_CONDITIONS, seed=seed)
-        row = dict(_judge(traces, truth, seed, False), set=f"effect {e}", runs=len(traces))
-        rows.append(row)
-        _robust_line(row)
+    rows = {}
+    for name in names:
+        if name in done:
+            rows[name] = done[name]
+            _robust_line(done[name])
+    todo = [job for job, name in zip(jobs, names) if name not in done]
+    with ProcessPoolExecutor(max_workers=max(1, workers)) as ex:
+        for fut in as_completed([ex.submit(_robust_job, job) for job in todo]):
+            row = fut.result()
+            rows[row["set"]] = row
+            if record:
+                with open(record, "a") as f:
+                    f.write(json.dumps(dict(row, context=context), default=float) + "\n")
+            _robust_line(row)
+    rows = [rows[name] for name in names]
     clean = [r for r in rows if r["set"].startswith("clean")]
     eff = [r for r in rows if r["set"].startswith("effect")]
     walls = [r["wall_s"] for r in rows]
@@ -467,6 +493,8 @@ def main(argv=None) -> int:
     b.add_argument("--sets", type=int, default=20, help="clean sets (default %(default)s)")
     b.add_argument("--effects", default="all", help="all, none, or comma-separated effect ids")
     b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--workers", type=int, default=1)
+    b.add_argument("--record", metavar="FILE", help="append each set as it finishes; resume from FILE")
     for p in (c, s, r, b):
         p.add_argument("--json", metavar="OUT")
     a = ap.parse_args(argv)
@@ -491,7 +519,7 @@ def main(argv=None) -> int:
     elif a.what == "robustness":
         effects = (ROBUST_EFFECTS if a.effects == "all" else () if a.effects == "none"
                    else tuple(e.strip() for e in a.effects.split(",") if e.strip()))
-        out = robustness(a.sets, effects, a.seed)
+        out = robustness(a.sets, effects, a.seed, a.workers, a.record)
     else:
         out = speed([int(x) for x in a.runs.split(",")], a.steps, a.coating)
     if a.json:
