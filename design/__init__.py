@@ -15,9 +15,14 @@ ranges
     regime and the camera (:func:`operating_ranges`).
 plots
     Fig. 3 (the Table I region) with spring sets drawn on it; operating-range maps.
+experiment
+    Experiment plans that make the friction parameters identifiable (D/A/E-optimal
+    choice of runs), verified by Monte Carlo fits.
 cli
-    ``python -m design springs ...``, ``python -m design ranges ...``.
+    ``nanofrictor-design springs|ranges|experiment ...`` (or ``python -m design ...``).
 """
+
+from identify import __version__
 
 from .constraints import (
     TABLE_I,
@@ -31,6 +36,7 @@ from .constraints import (
     require,
     robust_load_range,
 )
+from .experiment import Candidate, ExperimentPlan, design_experiment, paper_plan, verify_plans
 from .plots import plot_design, plot_feasible_region, plot_operating_ranges, plot_spring_set
 from .ranges import OperatingRanges, UsabilityRules, operating_ranges
 from .spring_set import (
@@ -60,6 +66,7 @@ from .springs import (
 )
 
 __all__ = [
+    "__version__",
     # springs
     "ETCH_BIAS_UM",
     "LONG_SUSPENSION",
@@ -98,6 +105,12 @@ __all__ = [
     "OperatingRanges",
     "UsabilityRules",
     "operating_ranges",
+    # experiment design
+    "Candidate",
+    "ExperimentPlan",
+    "design_experiment",
+    "paper_plan",
+    "verify_plans",
     # plots
     "plot_design",
     "plot_feasible_region",

@@ -21,11 +21,14 @@ experiment
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
+
+from identify import __version__
+from identify.cli import program_name
+from identify.jsonio import write_json
 
 __all__ = ["main", "build_parser"]
 
@@ -55,7 +58,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
 def _write_outputs(args: argparse.Namespace, result) -> None:
     """Write ``result.to_json()`` to --json and ``result.plot`` to --plot when given."""
     if args.json is not None:
-        args.json.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
+        write_json(args.json, result.to_json())
         print(f"wrote {args.json}")
     if args.plot is not None:
         from matplotlib.figure import Figure
@@ -230,7 +233,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
                              prior_information=prior, travel_um=args.travel_um, progress=say)
     if args.verify:
         if args.json is not None:  # the design is saved before the long verification
-            args.json.write_text(json.dumps(plan.to_json(), indent=2) + "\n", encoding="utf-8")
+            write_json(args.json, plan.to_json())
         record = args.verify_record
         if record is None and args.json is not None:
             record = args.json.with_suffix(".verify.jsonl")
@@ -247,10 +250,11 @@ _SUBCOMMANDS: tuple[Callable, ...] = (_add_springs, _add_ranges, _add_experiment
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser: one subparser per entry of ``_SUBCOMMANDS``."""
     parser = _Parser(
-        prog="python -m design",
+        prog=program_name("design"),
         description="nanofrictor design: springs, operating ranges and experiments.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log solver progress")
+    parser.add_argument("--version", action="version", version=f"%(prog)s (nanofrictor) {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for add in _SUBCOMMANDS:
         add(sub)

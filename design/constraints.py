@@ -27,8 +27,8 @@ below are the only place these numbers are written.
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Iterable, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -155,7 +155,7 @@ class Constraint:
 
     def violations(
         self, normal_load: npt.ArrayLike, spring_constant: npt.ArrayLike, mu: npt.ArrayLike
-    ) -> list["Violation"]:
+    ) -> list[Violation]:
         """One :class:`Violation` per broadcast point where the constraint fails."""
         nb, k, m = np.broadcast_arrays(
             np.asarray(normal_load, float),

@@ -25,11 +25,13 @@ import itertools
 import json
 import math
 import warnings
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
 
 import numpy as np
+
+from identify.jsonio import dumps
 
 __all__ = ["Candidate", "CRITERIA", "ExperimentPlan", "run_information", "run_information_parts", "run_problem",
            "design_experiment", "paper_plan", "prior_from_fit", "verify_plans"]
@@ -228,7 +230,9 @@ class ExperimentPlan:
     @staticmethod
     def _gmean(se: Mapping[str, float], nominal: Mapping[str, float]) -> float:
         rel = [se[n] / abs(nominal[n]) for n in se]
-        return float(np.exp(np.mean(np.log(rel)))) if all(np.isfinite(rel)) and all(r > 0 for r in rel) else float("nan")
+        if not (all(np.isfinite(rel)) and all(r > 0 for r in rel)):
+            return float("nan")
+        return float(np.exp(np.mean(np.log(rel))))
 
     def report(self) -> str:
         lines = [f"Experiment plan: {self.coating}, {len(self.plan)} runs, {self.criterion}-optimal"
@@ -334,7 +338,8 @@ def default_candidates(springs: Sequence[float], travel_um: float = 30.0,
         loads = loads_uN if loads_uN is not None else np.geomspace(lo, min(hi, 60.0), 4)
         for nb in loads:
             if lo * (1 - 1e-9) <= nb <= hi * (1 + 1e-9):
-                out += [Candidate(float(k), float(np.round(nb, 3)), float(fp), travel_um) for fp in fps_Hz if fp <= 5000]
+                out += [Candidate(float(k), float(np.round(nb, 3)), float(fp), travel_um)
+                        for fp in fps_Hz if fp <= 5000]
     return out
 
 
@@ -617,7 +622,7 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
                     say(f"  {key.split('_')[0]} repeat {r + 1} failed: {err}")
                 rows[(key, seed + r)] = row
                 if fh is not None:
-                    fh.write(json.dumps(row) + "\n")
+                    fh.write(dumps(row, indent=None) + "\n")
                     fh.flush()
                 say(f"verification: {i}/{len(jobs)} fits done")
     finally:

@@ -74,7 +74,7 @@ def plot_feasible_region(ax=None, *, k_limits_N_per_m: tuple[float, float] = (3e
 
 
 def plot_spring_set(
-    spring_set: "SpringSet",
+    spring_set: SpringSet,
     ax=None,
     *,
     color: str = "C0",
@@ -109,7 +109,7 @@ def plot_spring_set(
     return ax
 
 
-def plot_design(result: "SpringSetResult", ax=None):
+def plot_design(result: SpringSetResult, ax=None):
     """Fig. 3 with an optimised set, the paper's set and the requested load range.
 
     Returns
@@ -134,7 +134,7 @@ def plot_design(result: "SpringSetResult", ax=None):
     return ax
 
 
-def plot_operating_ranges(ranges: "OperatingRanges", ax=None):
+def plot_operating_ranges(ranges: OperatingRanges, ax=None):
     """Regime map of one spring over (fp, Nb) with its usable points (issue 4, item 4).
 
     Cells are coloured by the simulated regime (:func:`identify.plots.plot_regime_map`;

@@ -61,8 +61,8 @@ import functools
 import itertools
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import casadi as ca
 import numpy as np
@@ -469,7 +469,7 @@ _LOG_LO_PER_K = math.log(tc.ELONGATION_RESOLUTION.bound / tc.MU_MIN.bound)  # ln
 _LOG_HI_PER_K = math.log(tc.PULLER_TRAVEL.bound / tc.MU_MAX.bound)  # ln(hi/k_soft), ln m
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _maximin_solver(n: int) -> ca.Function:
     """Ipopt solver: maximise t s.t. m_j ≥ a_j·t + (1 − a_j)·floor_j, nominal k ordered.
 

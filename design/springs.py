@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Union
 
 import numpy as np
 
@@ -70,7 +69,7 @@ __all__ = [
     "paper_springs",
 ]
 
-ArrayLike = Union[float, np.ndarray]
+ArrayLike = float | np.ndarray
 
 # --- Constants (MODEL.md, "Springs and the design constraints (Table I, Fig. 3)") --------
 YOUNGS_MODULUS_POLYSILICON = 164e9

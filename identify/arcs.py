@@ -176,7 +176,7 @@ class ArcFunctions:
             if len(memo) + len(cols) > MEMO_MAX:
                 memo.clear()
             fresh = {}
-            for c, (k, j) in enumerate(todo.items()):
+            for c, k in enumerate(todo):
                 fresh[k] = memo[k] = new[:, c].copy()
             found = [y if y is not None else fresh[k] for k, y in zip(keys, found)]
         return np.stack(found, axis=1) if n else np.zeros((len(ARC_OUTPUTS), 0))
@@ -321,7 +321,7 @@ def _mapped(f: ca.Function, n: int, threads: int) -> ca.Function:
     return f.map(n, "thread", threads) if threads > 1 else f.map(n)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def arc_functions(model: Model, reltol: float = ARC_RELTOL, abstol: float = ARC_ABSTOL) -> ArcFunctions:
     """Cached :class:`ArcFunctions` for ``model``."""
     return ArcFunctions(model, reltol, abstol)

@@ -41,7 +41,7 @@ import os
 import statistics
 import sys
 import time
-from typing import Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -258,11 +259,9 @@ def run_candidate(task: CandidateTask) -> dict:
         # a refit from one start that ends worse than the current model has not found the
         # candidate's fit (its null is the current model, or for a law the same friction
         # under another curve): the starts passed over for a lower χ² are solved too, best
-        # first (FALLBACK_STARTS; several basins are their own diversity already). Measured (the withheld logarithmic-law set, the logarithmic
-        # law's refit): from the staged start (½χ² 7156) it ended Singular_KKT at ½χ²
-        # 242 473 against the current model's 31 742, "worse", so never judged on its own
-        # mode sequence; from the current values (½χ² 30 371) it converges to 5200, with
-        # μ0 0.496, B 0.077, A 0.0139 (the data's 0.484, 0.0794, 0.015), 145 s
+        # first (FALLBACK_STARTS; several basins are their own diversity already). A refit
+        # of a law from the staged start can stop far worse than from the current values
+        # (the engineering notes measure one on the withheld logarithmic-law set).
         tried = {id(x[0]) for x in todo}
         rest = [] if several else sorted((x for x in scored if id(x[0]) not in tried), key=lambda x: x[2])
         for w0, _, f0 in rest[:FALLBACK_STARTS]:

@@ -19,16 +19,28 @@ Every command is a function ``_cmd_<name>(args) -> int``. Exit status:
 from __future__ import annotations
 
 import argparse
-import json
 import logging
+import os
 import sys
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
-__all__ = ["main", "build_parser"]
+from . import __version__
+from .jsonio import write_json
+
+__all__ = ["main", "build_parser", "program_name"]
 
 log = logging.getLogger("identify")
+
+
+def program_name(package: str) -> str:
+    """The command as the user typed it, for usage lines: the installed script's name
+    (``nanofrictor-identify``) when run through it, else ``python -m <package>``."""
+    base = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else ""
+    if base.startswith("nanofrictor-"):
+        return base
+    return f"python -m {package}"
 
 
 class CLIError(ValueError):
@@ -50,25 +62,6 @@ def _parse_params(items: Sequence[str] | None, flag: str = "--param") -> dict[st
             except ValueError:
                 raise CLIError(f"{flag} {part!r}: {value!r} is not a number") from None
     return out
-
-
-def _write_json(path: str | Path, data: dict) -> Path:
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
-    return p
-
-
-def _json_default(o):
-    import numpy as np
-
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 # ----------------------------------------------------------------------------- simulate
@@ -139,7 +132,7 @@ def _cmd_simulate(args) -> int:
         summary = res.summary()
         summary["trace"] = {"csv": str(csv_path), "json": str(json_path), "frames": len(trace.time_s),
                             "noise_nm": args.noise_nm, "seed": args.seed}
-        print(f"wrote {_write_json(args.json, summary)}")
+        print(f"wrote {write_json(args.json, summary)}")
     return 0 if res.completed else 1
 
 
@@ -171,7 +164,7 @@ def _cmd_regimes(args) -> int:
                    args.stick_speed, progress=progress)
     print(m.table())
     if args.json:
-        print(f"wrote {_write_json(args.json, m.to_json())}")
+        print(f"wrote {write_json(args.json, m.to_json())}")
     if args.plot:
         from .plots import save_figure
 
@@ -201,7 +194,7 @@ def _cmd_analyze(args) -> int:
     res = analyze(args.data, source=args.source, recursive=args.recursive)
     print(res.report())
     if args.json:
-        print(f"wrote {_write_json(args.json, res.to_json())}")
+        print(f"wrote {write_json(args.json, res.to_json())}")
     if args.plots:
         paths = res.save_plots(args.plots)
         print(f"wrote {len(paths)} figure(s) to {args.plots}")
@@ -295,14 +288,14 @@ def _run_fit(args, data, true_values=None) -> int:
               progress=lambda msg: print(f"[fit] {msg}", file=sys.stderr, flush=True))
     # the fit is saved before any optional extra work, so nothing computed is lost
     if args.json:
-        print(f"wrote {_write_json(args.json, res.to_json())}", file=sys.stderr)
+        print(f"wrote {write_json(args.json, res.to_json())}", file=sys.stderr)
     for name in (n.strip() for n in (args.profile or "").split(",") if n.strip()):
         if name not in res.free:
             raise CLIError(f"--profile {name}: not a free parameter ({', '.join(res.free)})")
         res = res.with_profiles(res.profile(name, progress=lambda msg: print(f"[fit] {msg}", file=sys.stderr,
                                                                              flush=True)))
         if args.json:
-            _write_json(args.json, res.to_json())
+            write_json(args.json, res.to_json())
     print(res.report())
     if args.plots:
         paths = res.save_plots(args.plots)
@@ -436,10 +429,11 @@ _COMMANDS = [_add_demo, _add_simulate, _add_regimes, _add_analyze, _add_fit, _ad
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m identify",
+        prog=program_name("identify"),
         description="nanofrictor: simulate, analyse and identify MEMS stick-slip friction runs.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    parser.add_argument("--version", action="version", version=f"%(prog)s (nanofrictor) {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for add in _COMMANDS:
         add(sub)

@@ -28,6 +28,7 @@ import numpy as np
 
 from .arcs import arc_functions
 from .exact_arcs import EXACT_RELTOL, GRAZING_REASONS, ExactArcs, grazing_flags
+from .jsonio import dumps
 from .laws import get_law
 from .model import Model
 from .params import parameter_set
@@ -206,17 +207,6 @@ def format_result(r: dict) -> str:
     return "\n".join(lines)
 
 
-def _strict(x):
-    """``x`` with every non-finite float as None (strict JSON)."""
-    if isinstance(x, dict):
-        return {k: _strict(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_strict(v) for v in x]
-    if isinstance(x, float) and not np.isfinite(x):
-        return None
-    return x
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m identify bench derivatives",
                                  description="Arc Jacobians (exact IDAS route and finite differences) "
@@ -227,7 +217,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--travel-um", type=float, default=10.0, help="travel of the simulated sets, µm")
     ap.add_argument("--json", metavar="OUT", help="write every figure to this JSON file")
     a = ap.parse_args(argv)
-    import json
     import os
 
     data = a.data if a.data and os.path.isdir(a.data) else None
@@ -238,6 +227,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(format_result(r), flush=True)
     if a.json:
         with open(a.json, "w") as fh:
-            json.dump(_strict(results), fh, indent=1, allow_nan=False)
+            fh.write(dumps(results, indent=1))
     return 0
 

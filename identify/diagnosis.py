@@ -28,23 +28,24 @@ it shrinks once that effect is added — on runs the fit did not see (DESIGN.md 
 from __future__ import annotations
 
 import concurrent.futures as cf
-import json
+import functools
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from scipy import stats
 
 from .candidates import GAVE_UP, GIVE_UP_MARGIN, MAGNITUDE_MOVED_Z, STALLED, CandidateTask, run_candidate
 from .effects import EFFECTS, display, get_effect
-from .events import _jsonable  # NaN/inf -> null, numpy -> Python
 from .executors import make_executor
 from .fit import FitError, FitOptions, fit
 from .heldout import folds_of
+from .jsonio import write_json
 from .nlp import GIVE_UP_FEAS, NOT_DIFFERENTIABLE
 from .regime_screen import moved_text, own_screen, parting, regime_screen, smallest_moves
 from .where import where, with_regime
@@ -285,23 +286,12 @@ class DiagnosisResult:
 
     def save_json(self, path) -> Path:
         """Strict JSON: non-finite numbers are written as null."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(_jsonable(self.to_json()), indent=2, default=_json_default, allow_nan=False))
-        return path
+        return write_json(path, self.to_json())
 
     def save_plots(self, folder) -> list:
         from .plots_diagnosis import save_diagnosis_plots
 
         return save_diagnosis_plots(self, folder)
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o).__name__)
 
 
 _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delta_bic", "confounded_with",
@@ -325,8 +315,8 @@ def _cand_json(c: dict) -> dict:
 REGIME_MISMATCH = "the model predicts stick-slip"
 
 
-def _regime_mismatch(err, fopts: FitOptions, opts: "DiagnosisOptions", t0: float,
-                     say: Callable[[str], None], executor: cf.Executor | None = None) -> "DiagnosisResult":
+def _regime_mismatch(err, fopts: FitOptions, opts: DiagnosisOptions, t0: float,
+                     say: Callable[[str], None], executor: cf.Executor | None = None) -> DiagnosisResult:
     """No run has a resolvable slip where the model, at the start parameters, stick-slips
     in every one, and the runs that creep as the model does, if any, are too few to fix
     the parameters (measured: logistic-law data, which never re-age after a slip; with
@@ -549,10 +539,13 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
             n_cand = len([t for t in tasks if t.effect])
             retry = None
             if opts.resequence is not False:
-                retry = lambda c: _own_sequence(c, base, current, runs, fopts, prob, folds, opts,  # noqa: E731
-                                                threads, own, say)
-            chosen, groups = _choose(scored, base, lambda c: _beside(c, scored, base, current, runs, fopts, opts,
-                                                                     threads, own, where0, n_cand, say), retry)
+                retry = functools.partial(_own_sequence, base=base, current=current, runs=runs, fopts=fopts,
+                                          prob0=prob, folds=folds, opts=opts, threads=threads, executor=own,
+                                          say=say)
+            beside = functools.partial(_beside, scored=scored, base=base, current=current, runs=runs, fopts=fopts,
+                                       opts=opts, threads=threads, executor=own, where_hint=where0, n_cand=n_cand,
+                                       say=say)
+            chosen, groups = _choose(scored, base, beside, retry)
             _regime_notes(scored, base)
             confounded.extend(groups)
             n_refits += sum(len(c.get("beside", [])) for c in scored)  # each check is a refit
@@ -714,7 +707,7 @@ SCREEN_AT_FINAL = ("the final model's values", "nothing is refitted here (the li
                    "candidate's magnitude, refitted, and a profile weigh it on every run")
 
 
-def _final_screen(current: dict, regime_runs: list, effects: list, opts: "DiagnosisOptions", say,
+def _final_screen(current: dict, regime_runs: list, effects: list, opts: DiagnosisOptions, say,
                   executor=None) -> list:
     """The current model and each candidate not named, at its realistic magnitude on top
     of the final model's values, against the runs left out for their regime that the
@@ -818,7 +811,7 @@ def _held_note(held: list, n_runs: int) -> str | None:
     return head + "; ".join(one(c) for c in yes) + tail
 
 
-def _profile_held(held: list, current: dict, runs: list, fopts, opts: "DiagnosisOptions", regime_runs: list, check,
+def _profile_held(held: list, current: dict, runs: list, fopts, opts: DiagnosisOptions, regime_runs: list, check,
                   executor, say, n_cand: int, confounded: list) -> dict | None:
     """Name a candidate on the runs left out for their regime, where only they show it.
 
@@ -1264,7 +1257,9 @@ def _heldout_by_fold(base: dict, c: dict, fold_names=None):
         return [], None
     h = 0.5 * (np.asarray(ho_b["chi2_by_fold"]) - np.asarray(ho_c["chi2_by_fold"]))
     g = 0.5 * (np.asarray(ho_b["fitted_chi2_by_fold"]) - np.asarray(ho_c["fitted_chi2_by_fold"]))
-    names = fold_names if fold_names is not None and len(fold_names) == len(h) else [[f"fold {k}"] for k in range(len(h))]
+    names = fold_names
+    if names is None or len(names) != len(h):
+        names = [[f"fold {k}"] for k in range(len(h))]
     by_fold = [dict(runs=list(n), fitted_delta_nll=float(gi), heldout_delta_nll=float(hi))
                for n, gi, hi in zip(names, g, h)]
     if len(h) < MIN_FOLDS_SET_ASIDE or any(len(n) != 1 for n in names):

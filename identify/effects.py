@@ -15,13 +15,14 @@ compared by ΔAIC, not by a likelihood-ratio test.
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Mapping
+from collections.abc import Mapping
+from typing import ClassVar
 
 from .params import SPECS
 
 __all__ = ["Effect", "EFFECTS", "get_effect", "effect_ids"]
 
-EFFECTS: dict[str, "Effect"] = {}
+EFFECTS: dict[str, Effect] = {}
 
 
 class Effect:

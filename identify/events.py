@@ -72,6 +72,7 @@ from typing import Any
 
 import numpy as np
 
+from .jsonio import jsonable as _jsonable
 from .traces import Trace
 
 __all__ = [
@@ -572,20 +573,6 @@ def _segment(b: np.ndarray, sigma: float, min_z: float) -> tuple[list[_Seg], lis
 
 
 # ----------------------------------------------------------------------------- result
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
-
-
 _PLATEAU_KEYS = ("first_frame", "last_frame", "n_frames", "level_m", "level_se_m", "mean_puller_m")
 _SLIP_KEYS = (
     "trigger_step",
@@ -789,7 +776,7 @@ def extract_events(trace: Trace, *, noise_m: float | None = None, min_z: float =
     noise_m : float, optional
         Camera noise σ, m; default estimated from the trace.
     min_z : float
-        Smallest significance |Δlevel|/se of a slip (and of any level change kept).
+        Smallest significance ``|Δlevel|/se`` of a slip (and of any level change kept).
 
     Returns
     -------

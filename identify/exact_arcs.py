@@ -105,10 +105,16 @@ class ExactArcs:
         self.n_failed = 0  # arcs whose IDAS integration or stop refinement failed
 
     # ---------------------------------------------------------------- symbolic
-    @functools.cache
     def _segment(self, plugin: str) -> ca.Function:
         """(X0, xp_um, p) -> X at the end of one segment of the slip ODE (x, v, state),
-        the segment's length the last entry of p (ms), integrated by ``plugin``."""
+        the segment's length the last entry of p (ms), integrated by ``plugin``
+        (built once per plugin and kept)."""
+        key = ("segment", plugin)
+        if key not in self._functions:
+            self._functions[key] = self._build_segment(plugin)
+        return self._functions[key]
+
+    def _build_segment(self, plugin: str) -> ca.Function:
         ode, x3, u, p = _forward_slip_ode(self.model)
         opts = dict(reltol=self.reltol, abstol=min(self.abstol), max_num_steps=200_000)
         if plugin == "idas":
@@ -236,7 +242,8 @@ class ExactArcs:
             done[good] = (np.abs(dtau[~bad]) < ROOT_STEP) | (np.abs(miss[~bad]) < ROOT_MISS * peak[~bad])
         return tau, done & live
 
-    def jacobian(self, A: np.ndarray, Y: np.ndarray, rows, threads: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def jacobian(self, A: np.ndarray, Y: np.ndarray, rows,
+                 threads: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Exact d(slip, state at horizon)/d(inputs ``rows``) of every arc (columns of A),
         seeded by its event-located outputs ``Y`` (5 × n, :meth:`ArcFunctions.evaluate`).
 
@@ -310,7 +317,8 @@ class ExactArcs:
             y[:, cols] = yy
             # (the map puts each arc's 2 × rows block side by side)
             J[:, np.array(rows)[:, None], cols[None, :]] = jj.reshape(2, cols.size, len(rows)).transpose(0, 2, 1)
-            ok[cols] = done & np.all(np.isfinite(yy), axis=0) & np.all(np.isfinite(jj.reshape(2, cols.size, -1)), axis=(0, 2))
+            finite_jac = np.all(np.isfinite(jj.reshape(2, cols.size, -1)), axis=(0, 2))
+            ok[cols] = done & np.all(np.isfinite(yy), axis=0) & finite_jac
         return y, J, ok
 
 

@@ -36,7 +36,7 @@ class Layout:
     groups: dict
 
     @classmethod
-    def of(cls, prob) -> "Layout":
+    def of(cls, prob) -> Layout:
         grp = prob.residual_groups()
         slope_runs = [i for i, r in enumerate(prob.runs) if r.kind == "events" and r.s_nn > 0]
         creep_runs = [i for i, r in enumerate(prob.runs) if r.kind == "creep"]
@@ -62,7 +62,7 @@ class FeatureValues:
     sigma_um: np.ndarray
     run: np.ndarray
 
-    def restrict(self, runs) -> "FeatureValues":
+    def restrict(self, runs) -> FeatureValues:
         m = np.isin(self.run, list(runs))
         return FeatureValues(self.name, self.value_um[m], self.sigma_um[m], self.run[m])
 

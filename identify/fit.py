@@ -13,15 +13,15 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Callable, Mapping
 
 import numpy as np
 
 from .arcs import ARC_ABSTOL, ARC_RELTOL
 from .laws import get_law
-from .model import Model
 from .missed import missed_slips
+from .model import Model
 from .nlp import Problem
 from .params import parameter_set, spec
 from .report import SUSPECT_REDCHI
@@ -788,7 +788,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     values = {**model.defaults(preset), **{n: preset[n] for n in MEASUREMENT}, **start}
     # a creep run is used only where the model at the start creeps too
     if any(r.kind == "creep" for r in run_data):
-        from .simulation import SimulationOptions, simulate_run, RunConditions
+        from .simulation import RunConditions, SimulationOptions, simulate_run
 
         kept = []
         for r in run_data:

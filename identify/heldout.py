@@ -22,7 +22,8 @@ linear steps put the held-out gap at 0.31 µm, the refits at 0.064 µm (fitted r
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -38,7 +39,7 @@ residuals agree with it to this many noise σ (RMS over the fold's rows and over
 kept rows) and its continuity constraints hold to this many σ of the runs' noise."""
 
 
-def folds_of(n_runs: int, folds: "str | int" = "loo", seed: int = 0) -> list:
+def folds_of(n_runs: int, folds: str | int = "loo", seed: int = 0) -> list:
     """Run-index folds: ``"loo"`` (one run each) or an integer k (k-fold, seeded)."""
     if folds in ("loo", None):
         return [[i] for i in range(n_runs)]

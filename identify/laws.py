@@ -26,8 +26,9 @@ logistic (Carlson–Batista phase-transition model, Eqs. 3–4, normalised by Nb
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -256,7 +257,7 @@ class Logistic(AgingLaw):
 LAWS: dict[str, AgingLaw] = {law.name: law for law in (Exponential(), Logarithmic(), Logistic())}
 
 
-def get_law(name: "str | AgingLaw") -> AgingLaw:
+def get_law(name: str | AgingLaw) -> AgingLaw:
     """The law called ``name``; a clear error lists the known ones."""
     if isinstance(name, AgingLaw):
         return name

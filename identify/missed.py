@@ -109,8 +109,8 @@ def missed_slips(prob, w: np.ndarray, min_gain: float = 9.0):
     inserted: dict[int, list] = {}
     for e in np.nonzero(np.isfinite(n_pred))[0]:
         ri = int(prob.ev_run[e])
-        split = best_split(prob, w, e, upto=n_pred[e] + 2, accept=lambda gain, d, tried: (
-            d >= 0.5 * median_slip[ri] and gain >= min_gain + 2.0 * np.log(max(tried, 1))))
+        split = best_split(prob, w, e, upto=n_pred[e] + 2, accept=lambda gain, d, tried, half=0.5 * median_slip[ri]: (
+            d >= half and gain >= min_gain + 2.0 * np.log(max(tried, 1))))
         if split is not None:
             inserted.setdefault(ri, []).append(split[1])
     changes = {}

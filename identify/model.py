@@ -32,8 +32,8 @@ threshold; the ``transition`` freezes it (m = 0), after which only the state age
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 import casadi as ca
 import numpy as np
@@ -156,7 +156,7 @@ class Model:
         return np.abs(self.spring_force(e, P)) <= cap * (1 + slack)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _symbols(model: Model):
     names = model.parameter_names + RUN_INPUTS
     p = ca.SX.sym("p", len(names))
@@ -166,7 +166,7 @@ def _symbols(model: Model):
     return names, p, P, X, u
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def slip_dae(model: Model) -> dict:
     """The symbolic slip-mode DAE (time- and state-scaled), with its zero indicators.
 
@@ -210,7 +210,7 @@ def slip_dae(model: Model) -> dict:
     return dict(x=X, u=u, p=p, ode=ode, zero=zero, names=names)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def arc_dae(model: Model) -> dict:
     """The slip DAE for identification arcs: the puller keeps stepping inside the arc.
 
@@ -230,7 +230,7 @@ def arc_dae(model: Model) -> dict:
     return dict(x=X, u=u, t=t, p=ca.vertcat(p, fp), ode=ode, zero=zero, names=names + ("fp",))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _transition(model: Model, extra_p: int = 0) -> ca.Function:
     """Freeze (stop), arm (stick threshold) or record the peak speed at an event."""
     names, p, P, X, u = _symbols(model)
@@ -248,14 +248,14 @@ def _transition(model: Model, extra_p: int = 0) -> ca.Function:
     )
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def slip_rhs(model: Model) -> ca.Function:
     """(X, xp_um, p) -> dX/d(normalised time), for Hermite event location."""
     d = slip_dae(model)
     return ca.Function("slip_rhs", [d["x"], d["u"], d["p"]], [d["ode"]], ["X", "xp_um", "p"], ["dX"])
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def slip_integrator(
     model: Model,
     plugin: str = "idas",

@@ -51,8 +51,8 @@ import re
 import tempfile
 import time
 import weakref
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Mapping, Sequence
 
 import casadi as ca
 import numpy as np
@@ -444,7 +444,7 @@ class _IpoptConvergence(ca.Callback):
     The test needs the arcs' Jacobian at the iterate, which Ipopt asks for next anyway
     (the arcs' callback remembers it), so it costs one KKT solve per iteration."""
 
-    def __init__(self, problem: "Problem"):
+    def __init__(self, problem: Problem):
         ca.Callback.__init__(self)
         self.problem = problem
         self.nx, self.ng = problem.n_w, problem.n_g

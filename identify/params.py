@@ -13,8 +13,8 @@ Table II of the paper), equation numbers are the paper's.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Iterable, Mapping
 
 __all__ = [
     "ParamSpec",

@@ -5,7 +5,7 @@ makes them), returns them, labels axes in display units (µm, µN, ms) and never
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -92,7 +92,7 @@ class RegimeRun:
     steady_slip_m: float | None = None
 
     @classmethod
-    def of(cls, rd) -> "RegimeRun":
+    def of(cls, rd) -> RegimeRun:
         """From a :class:`identify.rundata.RunData` of kind ``creep``."""
         ev = rd.events
         tr = ev.trace

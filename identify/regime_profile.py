@@ -33,8 +33,8 @@ without it, and its largest slip predicted there (µm, floored as the check floo
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import replace
-from typing import Callable
 
 import numpy as np
 from scipy import stats

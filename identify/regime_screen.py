@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import math
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 from .effects import get_effect
 from .executors import InProcess

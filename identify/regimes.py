@@ -8,8 +8,8 @@ written and with the stick-threshold option) and by ``design`` for operating ran
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import numpy as np
 

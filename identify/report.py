@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -216,7 +217,7 @@ class FitResult:
             f"constraints, {self.nlp_size['residuals']} residuals",
             f"    solver             = {s['method']}: {s['status']} after {s['iterations']} "
             f"iterations, {s['wall_time_s']:.2f} s",
-            *([f"    Ipopt              = "
+            *(["    Ipopt              = "
                + ("stopped at the fit's Gauss-Newton convergence test" if s["ipopt_status"] == "User_Requested_Stop"
                   else f"returned {s['ipopt_status']}")
                + f"; {s.get('restoration_iterations', 0)} restoration iteration(s)"]
@@ -324,7 +325,7 @@ class FitResult:
         :meth:`with_profiles` gives a result that carries the profile."""
         return profile(self, name, n_points=n_points, span=span, progress=progress)
 
-    def with_profiles(self, *profiles: Profile) -> "FitResult":
+    def with_profiles(self, *profiles: Profile) -> FitResult:
         """A copy of this result carrying ``profiles``: each parameter keeps its
         calibrated ``ci95`` and gets the profile's interval as ``ci95_profile``; a side the
         profile leaves open is flagged (undetermined above, below, or both)."""
@@ -479,7 +480,7 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
         for j, b in enumerate(tm.names):
             c = cov_nat[i, j] / (sd[i] * sd[j]) if sd[i] > 0 and sd[j] > 0 and np.isfinite(sd[i] * sd[j]) else None
             corr[a][b] = float(np.clip(c, -1, 1)) if c is not None and np.isfinite(c) else None
-    for i, a in enumerate(tm.names):
+    for a in tm.names:
         partners = [b for b in tm.names if b != a and corr[a][b] is not None and abs(corr[a][b]) > CONFOUNDED]
         if partners and params[a].flag is None:
             params[a].flag = f"confounded with {', '.join(partners)} (|correlation| > {CONFOUNDED})"

@@ -152,7 +152,8 @@ def _run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray | Non
     np.add.at(counts, (pof[use], ui), 1.0)
     return RunData(
         kind="events", plateau_n=n, plateau_mean_e=mean_e, plateau_mean_steps=mean_s,
-        plateau_level0=level0, plateau_mean_t=mean_t, frame_phases=phases, phase_counts=counts, s_nn=s_nn, slope_hat=slope,
+        plateau_level0=level0, plateau_mean_t=mean_t, frame_phases=phases, phase_counts=counts, s_nn=s_nn,
+        slope_hat=slope,
         s_res=max(s_res, 0.0), trigger_steps=np.asarray(triggers, int), **base,
     )
 

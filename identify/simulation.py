@@ -33,8 +33,9 @@ import logging
 import math
 import time as _time
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -191,11 +192,11 @@ class EventTable:
     def to_dict(self) -> dict[str, list]:
         return {k: v.tolist() for k, v in self.data.items()}
 
-    def select(self, mask) -> "EventTable":
+    def select(self, mask) -> EventTable:
         return EventTable({k: v[mask] for k, v in self.data.items()})
 
     @classmethod
-    def from_rows(cls, rows: list[dict]) -> "EventTable":
+    def from_rows(cls, rows: list[dict]) -> EventTable:
         data = {}
         for name, _ in _EVENT_COLUMNS:
             dtype = int if name in ("step_index", "steps_crossed", "reversals") else float

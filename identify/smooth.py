@@ -58,8 +58,8 @@ from __future__ import annotations
 import math
 import time as _time
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Mapping
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -154,7 +154,7 @@ class SmoothEvents:
         return self.data[name]
 
     @classmethod
-    def from_rows(cls, rows: list) -> "SmoothEvents":
+    def from_rows(cls, rows: list) -> SmoothEvents:
         return cls({c: np.array([r[c] for r in rows], float) for c in cls.columns})
 
 

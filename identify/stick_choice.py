@@ -56,7 +56,7 @@ def stick_choice(runs_ev, model, values: dict, options=(0.0, STICK_SPEED_AUTO), 
     out = StickChoice(n_stick_slip=len(runs))
     for v in options:
         creeping = []
-        for ev, rd in runs:
+        for _ev, rd in runs:
             steps = min(int(rd.trigger_steps[-1]) + 50 if len(rd.trigger_steps) else CHECK_STEPS, CHECK_STEPS)
             try:
                 sim = simulate_run(model, dict(values, v_stick=v), RunConditions(rd.k, rd.Nb, rd.fp, steps),

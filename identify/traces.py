@@ -18,9 +18,10 @@ import json
 import math
 import os
 import re
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping, NoReturn
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -525,7 +526,7 @@ class Trace:
         return csv_path, json_path
 
     @classmethod
-    def read(cls, path: str | os.PathLike) -> "Trace":
+    def read(cls, path: str | os.PathLike) -> Trace:
         """Read one run from ``RUN.csv``, ``RUN.json`` or the stem ``RUN``.
 
         Raises
@@ -568,7 +569,7 @@ class Trace:
         elongation_m: np.ndarray,
         name: str = "run",
         extra: Mapping[str, Any] | None = None,
-    ) -> "Trace":
+    ) -> Trace:
         """A trace of a simulated run (what :meth:`SimulationResult.sample` returns).
 
         Parameters

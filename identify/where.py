@@ -222,7 +222,8 @@ def where(prob, w: np.ndarray, r: np.ndarray | None = None) -> list:
         zr = np.array(zr)
         worst = int(np.argmax(np.abs(zr)))
         out.append(_chi2(zr, len(zr), "static_friction",
-                         f"mean trigger misfit {zr[worst]:+.1f} σ ({st.value_um[st.run == np.unique(st.run)[worst]].mean() * 1e3:+.0f} nm "
+                         f"mean trigger misfit {zr[worst]:+.1f} σ "
+                         f"({st.value_um[st.run == np.unique(st.run)[worst]].mean() * 1e3:+.0f} nm "
                          f"of elongation) in {labels[worst]}"))
         nx = prob.ev_next
         pv = nx - 1
@@ -255,7 +256,8 @@ def where(prob, w: np.ndarray, r: np.ndarray | None = None) -> list:
             lams = np.geomspace(lo, max(span / 2, 2 * lo), 240)
             d2, amp, ph = position_ripple(x_prev, dmu, wt, rip_run, lams)
             # clusters (phase-locked slips) inflate the weights: scale by the residual dispersion
-            disp = max(float(np.sum(wt * (dmu - _run_means(dmu, wt, rip_run)) ** 2)) / max(len(dmu) - len(np.unique(rip_run)), 1), 1.0)
+            dof = max(len(dmu) - len(np.unique(rip_run)), 1)
+            disp = max(float(np.sum(wt * (dmu - _run_means(dmu, wt, rip_run)) ** 2)) / dof, 1.0)
             peaks = ripple_peaks(d2)
             i = peaks[0] if peaks else int(np.argmax(np.nan_to_num(d2, nan=-np.inf)))
             n_ind = max(int(span / lo), 1)

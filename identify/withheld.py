@@ -11,7 +11,7 @@ nominal value by its own random error (±15 %), which no single global parameter
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

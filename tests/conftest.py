@@ -13,3 +13,20 @@ def _quiet_deprecations():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         yield
+
+
+def _refuse_constant(name):
+    raise ValueError(f"not strict JSON: {name}")
+
+
+@pytest.fixture
+def strict_json():
+    """Read a file the toolkit wrote with a strict JSON parser: NaN, Infinity and
+    -Infinity (which Python's json accepts by default) fail the test."""
+    import json
+
+    def read(path):
+        with open(path, encoding="utf-8") as fh:
+            return json.loads(fh.read(), parse_constant=_refuse_constant)
+
+    return read

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 import identify
-from identify.cli import main as identify_main
 from design.cli import main as design_main
+from identify.cli import main as identify_main
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 

@@ -7,13 +7,15 @@
 ``confusion``: for each effect (and "none", "outside"), simulate the withheld-effect data
 set (:func:`identify.withheld.withheld_dataset`) with each scale times the effect's
 realistic departure from its null (:meth:`identify.effects.Effect.scaled_magnitude`),
-fit the baseline without it, diagnose with every candidate, and record what was named, what was reported confounded, the verdict and the held-out gap before/after.
+fit the baseline without it, diagnose with every candidate, and record what was named, what
+was reported confounded, the verdict and the held-out gap before/after.
 One JSON line per case is appended as soon as it is done (nothing is lost to a stop);
 the table is printed at the end. The detection limit of an effect is the smallest
 magnitude at which it is still named (or reported confounded). ``a+b``: both effects on
 in one data set (forward selection must name each).
 
-``speed``: one full diagnosis of the 8-run withheld-conditions set (identify.withheld.CONDITIONS) with all candidates and
+``speed``: one full diagnosis of the 8-run withheld-conditions set
+(identify.withheld.CONDITIONS) with all candidates and
 leave-one-run-out, against the time of its own baseline fit measured in the same run;
 and its peak memory (resident set) against the process's own after that fit: the
 workers' largest, and this process's after the diagnosis.
@@ -85,7 +87,8 @@ def case(eid, scale, quick, workers, seed=0, progress=None):
                 truth_confounded_with=truth.get("confounded_with"), truth_p=truth.get("p_value"),
                 truth_delta_aic=truth.get("delta_aic"), truth_status=truth.get("status"),
                 truth_rounds=truth.get("rounds"),
-                heldout_before_um=truth.get("heldout_gap_before_um"), heldout_after_um=truth.get("heldout_gap_after_um"),
+                heldout_before_um=truth.get("heldout_gap_before_um"),
+                heldout_after_um=truth.get("heldout_gap_after_um"),
                 final_heldout_um=res.final["heldout_gap_um"], final_gap_um=res.final["gap_um"],
                 final_values=res.final["values"],
                 noise_um=res.final["noise_um"], notes=res.notes,
@@ -94,8 +97,9 @@ def case(eid, scale, quick, workers, seed=0, progress=None):
                 where_top=[(m.feature, round(m.misfit_sigma, 1)) for m in res.where[:3]],
                 truth_heldout_delta_nll=truth.get("heldout_delta_nll"),
                 truth_explained_share=truth.get("explained_share"),
-                baseline={k: (res.baseline.solver if res.baseline is not None else {}).get(k) for k in ("status", "iterations", "wall_time_s",
-                                                                   "triggers_moved", "slips_inserted", "slips_removed")},
+                baseline={k: (res.baseline.solver if res.baseline is not None else {}).get(k)
+                          for k in ("status", "iterations", "wall_time_s", "triggers_moved", "slips_inserted",
+                                    "slips_removed")},
                 refit_s={c["effect"]: round(c.get("wall_s") or 0.0, 1) for c in res.candidates if c.get("effect")},
                 # no baseline: the candidates that reproduce the runs' regime (pointed to, not named)
                 screen=[r["effect"] for r in res.regime_screen if r["effect"] and r["reproduces_regime"]],

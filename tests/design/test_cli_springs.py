@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 
@@ -11,11 +10,11 @@ import pytest
 from design.cli import main
 
 
-def test_springs_writes_json_and_plot(tmp_path, capsys):
+def test_springs_writes_json_and_plot(tmp_path, capsys, strict_json):
     out, fig = tmp_path / "springs.json", tmp_path / "fig3.png"
     argv = ["springs", "--load-range-uN", "0.1", "452", "--json", str(out), "--plot", str(fig)]
     assert main(argv) == 0
-    d = json.loads(out.read_text())
+    d = strict_json(out)
     for key in ("springs", "covered_load_range_uN", "worst_margin", "reference", "etch_bias_um",
                 "load_range_uN"):
         assert key in d
@@ -28,10 +27,10 @@ def test_springs_writes_json_and_plot(tmp_path, capsys):
     assert "Paper's springs" in printed and "worst margin" in printed
 
 
-def test_springs_default_range_and_etch_bias(tmp_path):
+def test_springs_default_range_and_etch_bias(tmp_path, strict_json):
     out = tmp_path / "o.json"
     assert main(["springs", "--etch-bias-um", "0.05", "--json", str(out)]) == 0
-    d = json.loads(out.read_text())
+    d = strict_json(out)
     assert d["etch_bias_um"] == 0.05 and d["worst_margin"] >= 0 and d["notes"]
 
 

@@ -7,8 +7,16 @@ import numpy as np
 import pytest
 
 from design.cli import main
-from design.experiment import (Candidate, _effective, _schur_information, design_experiment, prior_from_fit,
-                               run_information, run_information_parts, run_problem)
+from design.experiment import (
+    Candidate,
+    _effective,
+    _schur_information,
+    design_experiment,
+    prior_from_fit,
+    run_information,
+    run_information_parts,
+    run_problem,
+)
 
 SMALL = [Candidate(2.13, 5, 100, 12.0), Candidate(20.3, 30, 30, 12.0), Candidate(2.13, 10, 1000, 12.0)]
 
@@ -160,12 +168,12 @@ def test_cli_bad_input(tmp_path, capsys):
     assert "another coating" in err and "Traceback" not in err
 
 
-def test_cli_writes_plan(tmp_path, capsys):
+def test_cli_writes_plan(tmp_path, capsys, strict_json):
     out = tmp_path / "plan.json"
     code = main(["experiment", "--runs", "2", "--springs", "2.13", "--loads-uN", "5", "10", "--fp", "30", "100",
                  "--travel-um", "12", "--json", str(out), "--plot", str(tmp_path / "plan.png")])
     assert code == 0
-    js = json.loads(out.read_text())
+    js = strict_json(out)
     assert {"plan", "criterion", "predicted_stderr", "reference_plan"} <= set(js)
     assert len(js["plan"]) == 2
     assert set(js["plan"][0]) == {"spring_constant_N_per_m", "normal_load_uN", "step_frequency_Hz", "travel_um"}

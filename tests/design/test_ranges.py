@@ -182,12 +182,12 @@ def test_bad_input_raises_value_error(kwargs, match, monkeypatch):
 
 
 # ------------------------------------------------------------------------------ CLI
-def test_cli_writes_json_and_plot(tmp_path, capsys):
+def test_cli_writes_json_and_plot(tmp_path, capsys, strict_json):
     out, fig = tmp_path / "ranges.json", tmp_path / "ranges.png"
     argv = ["ranges", "--spring-constant", "2.13", "--coating", "FOTAS", "--loads-uN", "2", "5",
             "--fp", "10", "1000", "--travel-um", "20", "--json", str(out), "--plot", str(fig)]
     assert main(argv) == 0
-    d = json.loads(out.read_text())
+    d = strict_json(out)
     assert d["normal_load_range_uN"] == pytest.approx([1.917, 236.67], rel=1e-3)
     assert [p["usable"] for p in d["points"]] == [True, False, True, False]
     assert fig.stat().st_size > 1000

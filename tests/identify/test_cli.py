@@ -1,7 +1,6 @@
 """The identify CLI: simulate writes the trace and the summary; bad input exits 2 with one
 line naming the parameter and the rule, never a traceback."""
 
-import json
 import subprocess
 import sys
 
@@ -19,14 +18,15 @@ def test_help_lists_subcommands():
         assert cmd in out
 
 
-def test_simulate_writes_trace_and_summary(tmp_path, capsys):
+def test_simulate_writes_trace_and_summary(tmp_path, capsys, strict_json):
     out = tmp_path / "runs" / "r1"
     code = main(BASE + ["--noise-nm", "90", "--seed", "1", "--stick-speed", "1e-5", "--out", str(out),
                         "--json", str(tmp_path / "summary.json"), "--plot"])
     assert code == 0
     assert out.with_suffix(".csv").exists() and out.with_suffix(".json").exists()
     assert (tmp_path / "runs" / "r1_fig13.png").exists()
-    s = json.loads((tmp_path / "summary.json").read_text())
+    s = strict_json(tmp_path / "summary.json")
+    strict_json(out.with_suffix(".json"))  # the trace's metadata
     for key in ("n_slips", "regime", "slip_lengths_um", "peak_elongations_um", "peak_slip_speed_m_per_s",
                 "mean_rest_time_s", "wall_time_s"):
         assert key in s

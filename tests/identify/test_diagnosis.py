@@ -292,7 +292,7 @@ def test_runs_that_part_with_too_few_creep_runs_beside_them_are_unexplained():
     assert res.regime_screen[0]["regime"]["df"] == 1
 
 
-def test_runs_without_slips_where_the_model_stick_slips_are_unexplained(tmp_path):
+def test_runs_without_slips_where_the_model_stick_slips_are_unexplained(tmp_path, strict_json):
     """Nothing to fit (no run has a resolvable slip, the preset stick-slips in each): a
     verdict that says so, not an error — measured on the logistic-law withheld set."""
     traces = [identify.simulate("FOTAS", spring_constant_N_per_m=k, normal_load_uN=nb, step_frequency_Hz=fp,
@@ -311,7 +311,7 @@ def test_runs_without_slips_where_the_model_stick_slips_are_unexplained(tmp_path
     parting = res.regime_screen[0]["mismatched"]
     assert parting >= 1 and f"{parting} of 2 part from it" in res.where[0].detail
     assert "no candidate reproduces" in res.notes[1] and "[[Regime screen]]" in res.report()
-    js = json.loads(res.save_json(tmp_path / "d.json").read_text())
+    js = strict_json(res.save_json(tmp_path / "d.json"))
     assert js["verdict"] == "unexplained" and js["baseline"] is None and js["where"][0]["feature"] == "regime"
     assert [r["effect"] for r in js["regime_screen"]] == [None, "drift"]
     assert len(res.save_plots(tmp_path)) == 6
@@ -343,7 +343,8 @@ def test_options_and_cli_bad_input(capsys, tmp_path):
         DiagnosisOptions(alpha=2)
     with pytest.raises(ValueError, match="resequence = 'sometimes'"):
         DiagnosisOptions(resequence="sometimes")
-    assert DiagnosisOptions(resequence=np.True_).resequence is True and DiagnosisOptions(resequence=0).resequence is False
+    assert DiagnosisOptions(resequence=np.True_).resequence is True
+    assert DiagnosisOptions(resequence=0).resequence is False
     out = tmp_path / "d.json"
     assert main(["diagnose", str(SMALL[0]), "--effects", "drift,bogus", "--json", str(out)]) == 2
     err = capsys.readouterr().err
@@ -371,12 +372,12 @@ def test_cli_resequence_reaches_the_options(monkeypatch, tmp_path):
         assert seen[-1] is value or seen[-1] == value
 
 
-def test_cli_diagnose_writes_json(tmp_path, capsys):
+def test_cli_diagnose_writes_json(tmp_path, capsys, strict_json):
     out = tmp_path / "diag.json"
     code = main(["diagnose", *map(str, SMALL[:3]), "--fix", "v_stick=1e-5", "--effects", "drift",
                  "--workers", "1", "--json", str(out), "--plots", str(tmp_path / "fig")])
     assert code == 0
-    js = json.loads(out.read_text())
+    js = strict_json(out)
     assert js["verdict"] in ("adequate", "unexplained")
     assert js["candidates"][0]["effect"] == "drift"
     assert js["options"]["resequence"] == "auto" and js["options"]["gap_tolerance"] == 1.5
@@ -1440,7 +1441,7 @@ def test_a_candidate_that_fit_better_at_its_magnitude_is_started_there_next_roun
     assert len(plain[1].starts) == len(by["step_size"].starts) - 1
 
 
-def test_a_candidate_the_current_model_mimics_on_such_runs_is_confounded(tmp_path):
+def test_a_candidate_the_current_model_mimics_on_such_runs_is_confounded(tmp_path, strict_json):
     """A run that slips once and never again (the logistic law): the logistic law makes
     it, and so does the exponential law with τ ≥ 0.674 s (or, on this one short run, A ≥
     0.26, though not beyond): confounded with them, not named."""
@@ -1462,6 +1463,6 @@ def test_a_candidate_the_current_model_mimics_on_such_runs_is_confounded(tmp_pat
     assert "every other candidate parts from 1 run(s)" in res.notes[-1]
     rep = res.report()
     assert "(current model, moved)" in rep and "confounded with A, tau" in rep
-    js = json.loads(res.save_json(tmp_path / "d.json").read_text())
+    js = strict_json(res.save_json(tmp_path / "d.json"))
     assert js["confounded"][0]["confounded_with"] == ["A", "tau"]
     assert len(js["regime_moves"]) > 8 and {"moved", "start", "reproduces_regime"} <= set(js["regime_moves"][0])

@@ -8,7 +8,7 @@ import pytest
 
 import identify
 from identify.effects import EFFECTS, get_effect
-from identify.fit import FitOptions, prepare_runs, _run_data
+from identify.fit import FitOptions, _run_data, prepare_runs
 from identify.model import Model
 from identify.nlp import Problem
 

@@ -145,7 +145,8 @@ def test_arc_difference_schemes_agree(small_traces):
     rows = prob._cb_jac.rows
     n = A.shape[1]
     ref = prob.arcs.evaluate_jacobian(A, rows=rows)[1].reshape(2, n, -1)[:, :, rows]
-    for kw, tol in ((dict(scheme="forward", rel_step=SOLVE_REL_STEP), 1e-3), (dict(rel_step=COVARIANCE_REL_STEP), 1e-4)):
+    cases = ((dict(scheme="forward", rel_step=SOLVE_REL_STEP), 1e-3), (dict(rel_step=COVARIANCE_REL_STEP), 1e-4))
+    for kw, tol in cases:
         J = prob.arcs.evaluate_jacobian(A, rows=rows, **kw)[1].reshape(2, n, -1)[:, :, rows]
         rel = np.abs(J - ref) / (np.abs(ref) + 1e-3 * np.abs(ref).max(axis=(0, 1)))
         assert np.median(rel) < tol, kw
@@ -1227,7 +1228,8 @@ def test_no_damping_reaches_a_step_whose_parameters_are_held(small_fit):
     lbx, ubx = prob.bounds()
 
     def reach_of(free, lm=0.0):
-        Hd = H + sp.diags(np.r_[lm * np.maximum(H.diagonal()[: prob.n_theta], 1e-12), np.zeros(prob.n_w - prob.n_theta)])
+        damping = lm * np.maximum(H.diagonal()[: prob.n_theta], 1e-12)
+        Hd = H + sp.diags(np.r_[damping, np.zeros(prob.n_w - prob.n_theta)])
         sol = nlp._kkt_solve(Hd.tocsc(), Jg, grad, g, free)
         d = np.zeros(prob.n_w)
         d[free] = sol[: len(free)]
@@ -1281,7 +1283,7 @@ def test_a_line_search_that_fails_at_every_damping_is_judged_as_a_stall(small_fi
     _worse_away_from(w, prob, monkeypatch)
     for verdict, status in (((nlp.STALLED, True), nlp.STALLED), (("Stalled", False), "Line_Search_Failed")):
         said = []
-        monkeypatch.setattr(prob, "_stalled", lambda *a, _v=verdict, **kw: said.append(kw) or _v)
+        monkeypatch.setattr(prob, "_stalled", lambda *a, _v=verdict, _s=said, **kw: _s.append(kw) or _v)
         res = prob.solve_gn(w)
         assert res["status"] == status and res["success"] == verdict[1] and said == [dict(damped=False)]
         assert np.array_equal(res["w"], w)
@@ -1528,12 +1530,12 @@ def small_data(small_traces, tmp_path_factory):
     return str(d)
 
 
-def test_cli_fit_writes_json(small_data, tmp_path, capsys):
+def test_cli_fit_writes_json(small_data, tmp_path, capsys, strict_json):
     out = tmp_path / "fit.json"
     code = cli_main(["fit", small_data, "--fix", "v_stick=1e-5", "--free", "mu_max,mu_min",
                      "--json", str(out)])
     assert code == 0
-    js = json.loads(out.read_text())
+    js = strict_json(out)
     assert js["parameters"]["mu_max"]["free"] and not js["parameters"]["tau"]["free"]
     assert js["n_runs"] == 2
     assert "[[Variables]]" in capsys.readouterr().out

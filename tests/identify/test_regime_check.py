@@ -304,7 +304,8 @@ def test_the_regime_screen_says_which_candidate_makes_runs_like_the_datas():
 
 def test_the_regime_screen_runs_in_the_diagnosis_workers(monkeypatch):
     """Each candidate is one picklable task: the same records from worker processes as
-    in this process (the same loop, each said as it is done); a pool that breaks loses that candidate's record to an error, not the screen."""
+    in this process (the same loop, each said as it is done); a pool that breaks loses that
+    candidate's record to an error, not the screen."""
     import concurrent.futures as cf
     import multiprocessing as mp
 
