@@ -2,7 +2,7 @@
 well determined.
 
 The information of a run is taken from the identification's own NLP
-(:class:`identify.nlp.Problem`), so the design optimises exactly what the fit will use:
+(:class:`identify.fitting.problem.Problem`), so the design optimises exactly what the fit will use:
 the run is simulated at the nominal parameters without noise, its events extracted, the
 NLP built with the camera noise model (``noise_nm``, 90 nm) as the frame standard
 deviation, the per-run nuisances (plateau positions) solved with the friction parameters
@@ -114,12 +114,12 @@ def run_problem(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, fl
     """The identification NLP of one noiselessly simulated run, its nuisances solved at
     the nominal parameters: (Problem, w, summary), or (None, None, summary) when the run
     carries no information."""
-    from identify.events import extract_events
-    from identify.fit import FitOptions, _run_data
-    from identify.laws import get_law
-    from identify.model import Model
-    from identify.nlp import Problem
-    from identify.params import parameter_set
+    from identify.fitting.driver import FitOptions, make_run_data
+    from identify.fitting.problem import Problem
+    from identify.model.laws import get_law
+    from identify.model.params import parameter_set
+    from identify.model.symbolic import Model
+    from identify.traces.events import extract_events
 
     p_nom = parameter_set(coating, dict(params or {}))
     fixed = {"v_stick": stick_speed_m_per_s} if "v_stick" not in free else {}
@@ -129,7 +129,7 @@ def run_problem(c: Candidate, coating: str = "FOTAS", *, params: Mapping[str, fl
     trace = sim.sample(noise_nm=0.0, name=c.label())
     try:
         ev = extract_events(trace, noise_m=noise_nm * 1e-9)
-        rd = _run_data(ev)
+        rd = make_run_data(ev)
     except (ValueError, RuntimeError) as err:
         return None, None, dict(info, used=False, reason=f"event extraction failed: {err}")
     rd.sigma = noise_nm * 1e-9  # the design's noise model, not the noiseless trace's
@@ -299,9 +299,9 @@ class ExperimentPlan:
 
     def plot(self, ax=None):
         """Predicted relative standard errors of the plan and the reference, per parameter."""
-        from identify.plots import _plt
+        from identify.plots.base import pyplot
 
-        plt = _plt()
+        plt = pyplot()
         if ax is None:
             _, ax = plt.subplots(figsize=(5.5, 3.5), constrained_layout=True)
         x = np.arange(len(self.free))
@@ -350,7 +350,7 @@ def design_experiment(n_runs: int, coating: str = "FOTAS", *, springs: Sequence[
                       max_enumerate: int = 20000, reference: Sequence[Candidate] | None = None,
                       progress: Callable[[str], None] | None = None) -> ExperimentPlan:
     """Choose ``n_runs`` runs from the candidate grid that optimise ``criterion``."""
-    from identify.params import parameter_set
+    from identify.model.params import parameter_set
 
     if criterion not in CRITERIA:
         raise ValueError(f"criterion {criterion!r}: choose one of {', '.join(CRITERIA)}")
@@ -510,12 +510,12 @@ def _fit_plan(plan, coating, free, noise_nm, stick, seed, jitter=0.0):
 
 def _spread(values: np.ndarray) -> tuple[float, float]:
     """Standard deviation and robust spread (1.4826 × MAD) of repeated estimates."""
-    from identify.events import _MAD_TO_SIGMA  # the one MAD -> σ constant
+    from identify.traces.events import MAD_TO_SIGMA  # the one MAD -> σ constant
 
     if values.size < 2:
         return float("nan"), float("nan")
     return (float(np.std(values, ddof=1)),
-            float(_MAD_TO_SIGMA * np.median(np.abs(values - np.median(values)))))
+            float(MAD_TO_SIGMA * np.median(np.abs(values - np.median(values)))))
 
 
 def _record_context(plan: ExperimentPlan, noise_nm: float, stick_speed_m_per_s: float,

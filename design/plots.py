@@ -8,15 +8,12 @@ the axes. Axes are in display units: spring constant k in N/m (x, log), normal l
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from . import constraints as tc
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .ranges import OperatingRanges
-    from .spring_set import SpringSet, SpringSetResult
+# The functions read their argument's attributes (a SpringSet, SpringSetResult or
+# OperatingRanges) without importing those classes: the results import the plots.
 
 __all__ = ["plot_feasible_region", "plot_spring_set", "plot_design", "plot_operating_ranges"]
 
@@ -74,7 +71,7 @@ def plot_feasible_region(ax=None, *, k_limits_N_per_m: tuple[float, float] = (3e
 
 
 def plot_spring_set(
-    spring_set: SpringSet,
+    spring_set,
     ax=None,
     *,
     color: str = "C0",
@@ -109,7 +106,7 @@ def plot_spring_set(
     return ax
 
 
-def plot_design(result: SpringSetResult, ax=None):
+def plot_design(result, ax=None):
     """Fig. 3 with an optimised set, the paper's set and the requested load range.
 
     Returns
@@ -134,10 +131,10 @@ def plot_design(result: SpringSetResult, ax=None):
     return ax
 
 
-def plot_operating_ranges(ranges: OperatingRanges, ax=None):
+def plot_operating_ranges(ranges, ax=None):
     """Regime map of one spring over (fp, Nb) with its usable points (issue 4, item 4).
 
-    Cells are coloured by the simulated regime (:func:`identify.plots.plot_regime_map`;
+    Cells are coloured by the simulated regime (:func:`identify.plots.base.plot_regime_map`;
     white where the camera rule excluded fp before simulating). Cells excluded by a rule
     other than the regime are hatched (``xx`` camera, ``//`` slip length, slip count or
     Table I); usable cells carry a dot. Dashed lines: the spring's Table I Nb limits.
@@ -149,7 +146,7 @@ def plot_operating_ranges(ranges: OperatingRanges, ax=None):
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch, Rectangle
 
-    from identify.plots import plot_regime_map
+    from identify.plots.base import plot_regime_map
 
     ax = _axes(ax)
     # OperatingRanges carries the attributes plot_regime_map reads from a RegimeMap.

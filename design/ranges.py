@@ -13,7 +13,7 @@ rule            test
 ==============  =======================================================================
 
 The camera rule depends on fp only, so those points are excluded before simulating. The
-regimes come from :func:`identify.regimes.regime_map`: one simulated run per point over the
+regimes come from :func:`identify.simulation.regimes.regime_map`: one simulated run per point over the
 whole travel, so the slip count is counted, not extrapolated.
 """
 
@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from identify.params import parameter_set
-from identify.regimes import regime_map
+from identify.model.params import parameter_set
+from identify.simulation.regimes import regime_map
 
 from . import constraints as tc
 

@@ -7,23 +7,23 @@ try:
 except PackageNotFoundError:  # a source tree that was never installed
     __version__ = "0+unknown"
 
-from .analyze import AnalyzeResult, analyze
-from .diagnosis import DiagnosisOptions, DiagnosisResult, diagnose
-from .events import RunEvents, extract_events
-from .fit import FitError, FitOptions, fit
-from .laws import LAWS, get_law
-from .model import Model
-from .params import (
+from identify.diagnosis.rounds import DiagnosisOptions, DiagnosisResult, diagnose
+from identify.fitting.driver import FitError, FitOptions, fit
+from identify.fitting.result import FitResult
+from identify.model.laws import LAWS, get_law
+from identify.model.params import (
     PARAMETER_SETS,
     SPECS,
     ParameterError,
     normal_load_from_voltage,
     parameter_set,
 )
-from .reduced import reduced_fit
-from .report import FitResult
-from .simulation import RunConditions, SimulationOptions, SimulationResult, simulate, simulate_run
-from .traces import Trace, TraceFormatError, TraceSet, load_traces
+from identify.model.symbolic import Model
+from identify.simulation.hybrid import RunConditions, SimulationOptions, SimulationResult, simulate, simulate_run
+from identify.traces.analyze import AnalyzeResult, analyze
+from identify.traces.events import RunEvents, extract_events
+from identify.traces.io import Trace, TraceFormatError, TraceSet, load_traces
+from identify.traces.reduced import reduced_fit
 
 __all__ = [
     "__version__",

@@ -26,8 +26,9 @@ import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
+from identify.jsonio import write_json
+
 from . import __version__
-from .jsonio import write_json
 
 __all__ = ["main", "build_parser", "program_name"]
 
@@ -98,7 +99,7 @@ def _add_simulate(sub):
 
 
 def _cmd_simulate(args) -> int:
-    from .simulation import SimulationOptions, simulate
+    from identify.simulation.hybrid import SimulationOptions, simulate
 
     params = _parse_params(args.param)
     stem = Path(args.out)
@@ -123,7 +124,7 @@ def _cmd_simulate(args) -> int:
     print(res.report())
     print(f"wrote {csv_path} and {json_path} ({len(trace.time_s)} frames)")
     if args.plot:
-        from .plots import plot_simulation, save_figure
+        from identify.plots.base import plot_simulation, save_figure
 
         axes = plot_simulation(res)
         paths = save_figure(axes[0].figure, stem.parent / f"{stem.name}_fig13")
@@ -153,7 +154,7 @@ def _add_regimes(sub):
 
 
 def _cmd_regimes(args) -> int:
-    from .regimes import regime_map
+    from identify.simulation.regimes import regime_map
 
     def progress(i, n):
         print(f"\r  {i}/{n} runs", end="", file=sys.stderr, flush=True)
@@ -166,7 +167,7 @@ def _cmd_regimes(args) -> int:
     if args.json:
         print(f"wrote {write_json(args.json, m.to_json())}")
     if args.plot:
-        from .plots import save_figure
+        from identify.plots.base import save_figure
 
         ax = m.plot()
         print("wrote " + ", ".join(map(str, save_figure(ax.figure, args.plot))))
@@ -189,7 +190,7 @@ def _add_analyze(sub):
 
 
 def _cmd_analyze(args) -> int:
-    from .analyze import analyze
+    from identify.traces.analyze import analyze
 
     res = analyze(args.data, source=args.source, recursive=args.recursive)
     print(res.report())
@@ -254,7 +255,7 @@ def _parse_bounds(items) -> dict:
 
 
 def _fit_options(args):
-    from .fit import DEFAULT_FREE, FitOptions
+    from identify.fitting.driver import DEFAULT_FREE, FitOptions
 
     free = tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else DEFAULT_FREE
     stick = _stick_mode(args)  # (first: a speed given there joins --fix)
@@ -281,7 +282,7 @@ def _stick_mode(args) -> str:
 
 
 def _run_fit(args, data, true_values=None) -> int:
-    from .fit import fit
+    from identify.fitting.driver import fit
 
     opts = _fit_options(args)
     res = fit(data, coating=args.coating, options=opts, true_values=true_values,
@@ -330,7 +331,7 @@ def _add_demo(sub):
 
 
 def _cmd_demo(args) -> int:
-    from .params import parameter_set
+    from identify.model.params import parameter_set
 
     data = Path(args.data) if args.data else _default_data(args.coating)
     if not data.is_dir():
@@ -370,14 +371,14 @@ def _add_diagnose(sub):
 
 
 def _effect_ids():
-    from .effects import EFFECTS
+    from identify.model.effects import EFFECTS
 
     return list(EFFECTS)
 
 
 def _cmd_diagnose(args) -> int:
-    from .diagnosis import DiagnosisOptions, diagnose
-    from .effects import EFFECTS
+    from identify.diagnosis.rounds import DiagnosisOptions, diagnose
+    from identify.model.effects import EFFECTS
 
     effects = "all" if args.effects.strip() == "all" else [e.strip() for e in args.effects.split(",") if e.strip()]
     for e in (effects if effects != "all" else []):
@@ -406,8 +407,8 @@ def _int_arg(text: str, flag: str) -> int:
 
 # ----------------------------------------------------------------------------- bench
 def _add_bench(sub):
-    p = sub.add_parser("bench", help="speed benchmark of the simulator against the smooth route; "
-                       "'bench derivatives': the arcs' Jacobians against tight differences",
+    p = sub.add_parser("bench", help="'bench derivatives': the arcs' Jacobians against tight differences "
+                       "(the speed benchmarks are scripts in the repository's tests/bench)",
                        add_help=False, prefix_chars="\0")
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=_cmd_bench)
@@ -415,12 +416,12 @@ def _add_bench(sub):
 
 def _cmd_bench(args) -> int:
     if args.rest and args.rest[0] == "derivatives":
-        from .derivative_check import main as derivatives_main
+        from identify.fitting.derivative_check import main as derivatives_main
 
         return int(derivatives_main(args.rest[1:]) or 0)
-    from .bench import main as bench_main
-
-    return int(bench_main(args.rest) or 0)
+    raise CLIError("bench: the installed command has one check, 'bench derivatives'; the speed benchmarks "
+                   "(simulator, fit, diagnosis) are scripts in the repository: tests/bench/bench_simulator.py, "
+                   "tests/bench/bench_fit.py, tests/bench/bench_diagnosis.py")
 
 
 # ----------------------------------------------------------------------------- main

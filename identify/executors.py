@@ -1,6 +1,6 @@
 """Where the diagnosis's independent tasks run: local processes, this process, or a dask
 cluster — all behind the ``concurrent.futures.Executor`` interface, so that the candidate
-refits (:mod:`identify.diagnosis`) and the regime screen (:mod:`identify.regime_screen`)
+refits (:mod:`identify.diagnosis.rounds`) and the regime screen (:mod:`identify.diagnosis.regime_screen`)
 each have one code path whatever runs them."""
 
 from __future__ import annotations

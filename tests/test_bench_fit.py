@@ -99,7 +99,7 @@ def test_a_robustness_row_that_failed_is_printed_as_such(capsys):
 def test_a_robustness_record_resumes_without_fitting(tmp_path, capsys):
     """Sets a record file holds for the same seed and fit options are read back, not refitted:
     a stopped run of the benchmark resumes where it stopped."""
-    from identify.fit import FitOptions
+    from identify.fitting.driver import FitOptions
 
     context = dict(kind="robustness", seed=0, fit_options=repr(FitOptions(stick_speed="auto")))
     row = dict(set="clean 0", runs=7, wall_s=12.0, chi2=100.0, truth_chi2=100.5, reached=True,

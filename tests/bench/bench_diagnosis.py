@@ -5,8 +5,8 @@
     python tests/bench/bench_diagnosis.py speed [--workers 2] [--progress]
 
 ``confusion``: for each effect (and "none", "outside"), simulate the withheld-effect data
-set (:func:`identify.withheld.withheld_dataset`) with each scale times the effect's
-realistic departure from its null (:meth:`identify.effects.Effect.scaled_magnitude`),
+set (:func:`identify.simulation.withheld.withheld_dataset`) with each scale times the effect's
+realistic departure from its null (:meth:`identify.model.effects.Effect.scaled_magnitude`),
 fit the baseline without it, diagnose with every candidate, and record what was named, what
 was reported confounded, the verdict and the held-out gap before/after.
 One JSON line per case is appended as soon as it is done (nothing is lost to a stop);
@@ -15,7 +15,7 @@ magnitude at which it is still named (or reported confounded). ``a+b``: both eff
 in one data set (forward selection must name each).
 
 ``speed``: one full diagnosis of the 8-run withheld-conditions set
-(identify.withheld.CONDITIONS) with all candidates and
+(identify.simulation.withheld.CONDITIONS) with all candidates and
 leave-one-run-out, against the time of its own baseline fit measured in the same run;
 and its peak memory (resident set) against the process's own after that fit: the
 workers' largest, and this process's after the diagnosis.
@@ -31,9 +31,9 @@ import time
 from pathlib import Path
 
 import identify
-from identify.diagnosis import DiagnosisOptions, diagnose
-from identify.effects import EFFECTS, get_effect
-from identify.withheld import CONDITIONS, QUICK_CONDITIONS, withheld_dataset
+from identify.diagnosis.rounds import DiagnosisOptions, diagnose
+from identify.model.effects import EFFECTS, get_effect
+from identify.simulation.withheld import CONDITIONS, QUICK_CONDITIONS, withheld_dataset
 
 
 def _baseline_options(eid):

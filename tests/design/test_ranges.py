@@ -15,7 +15,7 @@ from matplotlib.figure import Figure
 import design.ranges as dr
 from design import OperatingRanges, operating_ranges
 from design.cli import main
-from identify.regimes import RegimeMap
+from identify.simulation.regimes import RegimeMap
 
 TINY = {"loads_uN": [2.0, 5.0], "fps_Hz": [10.0, 1000.0, 10000.0], "travel_um": 20.0}
 

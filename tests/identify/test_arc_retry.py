@@ -1,13 +1,13 @@
-"""The arcs' retry at a strict tolerance (identify.arcs): an arc that failed at abstol
+"""The arcs' retry at a strict tolerance (identify.fitting.arcs): an arc that failed at abstol
 1e-6 made a start's χ² infinite on the 5-run speed benchmark. And their memory of
 arcs already integrated."""
 
 import numpy as np
 import pytest
 
-from identify.arcs import STRICT_ABSTOL, arc_functions
-from identify.laws import get_law
-from identify.model import Model
+from identify.fitting.arcs import STRICT_ABSTOL, arc_functions
+from identify.model.laws import get_law
+from identify.model.symbolic import Model
 
 # one arc of the 5-run speed benchmark (k 2.13 N/m, 20 µN, 300 Hz; A 33 % above the
 # truth): at abstol 1e-6 the integrator ended it in a slip of 0.55 m, at 1e-9 in 5.54 µm

@@ -1,14 +1,15 @@
 """Forward differences shared among nearly equal arcs while the solver iterates
-(identify.arcs.share_groups, identify.nlp.SHARE_TOL)."""
+(identify.fitting.arcs.share_groups, identify.fitting.arcs.SHARE_TOL)."""
 
 import warnings
 
 import numpy as np
 import pytest
 
-import identify.nlp as nlp
 from identify import FitOptions, fit
-from identify.arcs import share_groups
+from identify.fitting import arcs as arcs_mod
+from identify.fitting import covariance as cov_mod
+from identify.fitting.arcs import share_groups
 
 from .test_fit import V_STICK, _ForwardFlipped, _traces
 
@@ -71,13 +72,13 @@ def test_shared_differences_agree_with_each_arcs_own_at_the_solution(small):
     prob = res.problem
     A = np.array(prob._arc_inputs(res.w))
     rows, n = prob._cb_jac.rows, A.shape[1]
-    own = prob.arcs.evaluate_jacobian(A, rows=rows, rel_step=nlp.SOLVE_REL_STEP, scheme="forward")
-    shared = prob.arcs.evaluate_jacobian(A, rows=rows, rel_step=nlp.SOLVE_REL_STEP, scheme="forward",
-                                         share=nlp.SHARE_TOL)
+    own = prob.arcs.evaluate_jacobian(A, rows=rows, rel_step=arcs_mod.SOLVE_REL_STEP, scheme="forward")
+    shared = prob.arcs.evaluate_jacobian(A, rows=rows, rel_step=arcs_mod.SOLVE_REL_STEP, scheme="forward",
+                                         share=arcs_mod.SHARE_TOL)
     np.testing.assert_array_equal(own[0], shared[0])
     J, Js = (x[1].reshape(2, n, -1)[:, :, rows] for x in (own, shared))
     err = np.abs(Js - J).max(axis=2) / np.abs(J).max(axis=2)
-    reps, _ = share_groups(A, own[0], rows, prob.arcs.typical, nlp.SHARE_TOL)
+    reps, _ = share_groups(A, own[0], rows, prob.arcs.typical, arcs_mod.SHARE_TOL)
     assert len(reps) <= n // 3, (len(reps), n)
     assert err.max() < 3e-3, err.max()
 
@@ -112,9 +113,9 @@ def test_the_fit_ends_on_the_covariances_central_differences(small, monkeypatch)
 
     monkeypatch.setattr(prob, "solve_gn", recording)
     sol = prob.solve(w0)
-    assert seen == [(True, "forward", nlp.SHARE_TOL)] and sol["shared"] and sol["success"]
+    assert seen == [(True, "forward", arcs_mod.SHARE_TOL)] and sol["shared"] and sol["success"]
     own = prob.accurate_differences(dict(sol, slips_inserted=3))
-    assert seen[1:] == [(False, "central", nlp.COVARIANCE_SHARE_TOL)]
+    assert seen[1:] == [(False, "central", cov_mod.COVARIANCE_SHARE_TOL)]
     assert not own["shared"] and own["success"]
     assert own["slips_inserted"] == 3  # (the fit's records carried)
     assert own["iterations"] > sol["iterations"]
@@ -125,7 +126,7 @@ def test_the_fit_ends_on_the_covariances_central_differences(small, monkeypatch)
     seen.clear()
     assert prob.accurate_differences(own) is own and not seen  # nothing to do
     monkeypatch.undo()
-    prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP, share=False)
+    prob.jacobian_scheme("forward", arcs_mod.SOLVE_REL_STEP, share=False)
     end = prob.solve_gn(res.w.copy())
     assert end["success"] and end["iterations"] == 1
 
@@ -141,10 +142,10 @@ def test_a_rejected_step_on_shared_differences_is_taken_again_on_each_arcs_own(s
     w[0] += 1e-3
     monkeypatch.setattr(prob, "near_tol", 0.0)  # (only the tight convergence rule)
     monkeypatch.setattr(prob, "flat_iters", 0)
-    prob.jacobian_scheme("central", nlp.SOLVE_REL_STEP)
+    prob.jacobian_scheme("central", arcs_mod.SOLVE_REL_STEP)
     w = prob.solve_gn(w, fixed={0: w[0]})["w"]  # feasible, μmax held off
     assert np.abs(prob.evaluate(w)[1]).max() < prob.feas_tol
-    prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP)
+    prob.jacobian_scheme("forward", arcs_mod.SOLVE_REL_STEP)
     assert prob._cb_jac_shared()
     flipped = _ForwardFlipped(prob._cb_jac.arcs)
     monkeypatch.setattr(prob._cb_jac, "arcs", flipped)
@@ -166,19 +167,19 @@ def test_arcs_share_only_where_their_constraints_are_near_continuity(small):
     nx = prob.ev_next
     e = int(nx[len(nx) // 2])  # a slip with a predecessor and (most likely) a successor
     assert e + 1 in set(nx.tolist()) and prob.n_g == prob.E + nx.size
-    g[e] = 2 * nlp.SHARE_FEAS  # its slip length off the plateaus around it
+    g[e] = 2 * arcs_mod.SHARE_FEAS  # its slip length off the plateaus around it
     near = prob.near_continuity(g)
     assert not near[e] and not near[e + 1] and near[e - 1]
     assert near.sum() == prob.E - 2
     g[:] = 0.0
     j = int(np.flatnonzero(nx == e)[0])
-    g[prob.E + j] = -2 * nlp.SHARE_FEAS  # the start position of slip e, set by slip e - 1's end
+    g[prob.E + j] = -2 * arcs_mod.SHARE_FEAS  # the start position of slip e, set by slip e - 1's end
     near = prob.near_continuity(g)
     assert not near[e] and not near[e - 1] and near[e + 1] and near.sum() == prob.E - 2
     # the solver's scheme: the far arcs keep their own differences
-    prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP, share=near)
+    prob.jacobian_scheme("forward", arcs_mod.SOLVE_REL_STEP, share=near)
     assert prob._cb_jac_shared() and prob._cb_jac.own.sum() == 2
-    prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP, share=np.ones(prob.E, bool))
+    prob.jacobian_scheme("forward", arcs_mod.SOLVE_REL_STEP, share=np.ones(prob.E, bool))
     assert prob._cb_jac.own is None
     # a constraint that could not be evaluated (NaN): its arcs are not near, said without a warning
     g[:] = 0.0
@@ -198,17 +199,17 @@ def test_the_covariance_on_shared_central_differences_agrees_with_each_arcs_own(
     prob, w = res.problem, res.w
     A = np.array(prob._arc_inputs(w))
     reps, _ = share_groups(A, prob.arcs.evaluate(A), prob._cb_jac.rows, prob.arcs.typical,
-                           nlp.COVARIANCE_SHARE_TOL)
+                           cov_mod.COVARIANCE_SHARE_TOL)
     assert len(reps) < 0.8 * A.shape[1]  # (the test shares something)
     se = {}
-    for tol in (nlp.COVARIANCE_SHARE_TOL, None):
-        monkeypatch.setattr(nlp, "COVARIANCE_SHARE_TOL", tol)
+    for tol in (cov_mod.COVARIANCE_SHARE_TOL, None):
+        monkeypatch.setattr(cov_mod, "COVARIANCE_SHARE_TOL", tol)
         se[tol] = {m: np.sqrt(np.diag(prob.covariance(w, robust=m))[:prob.n_theta])
                    for m in ("robust", "cluster", "model")}
         assert prob._cb_jac.share == tol and prob._cb_jac.scheme == "central"
         assert not prob._cb_jac_shared()  # (not the solver's shared differences)
     for m, own in se[None].items():
-        np.testing.assert_allclose(se[nlp.COVARIANCE_SHARE_TOL][m], own, rtol=5e-3, err_msg=m)
+        np.testing.assert_allclose(se[cov_mod.COVARIANCE_SHARE_TOL][m], own, rtol=5e-3, err_msg=m)
 
 
 def test_a_failed_shared_step_far_out_is_checked_once_and_then_trusted(small, caplog):
@@ -223,14 +224,14 @@ def test_a_failed_shared_step_far_out_is_checked_once_and_then_trusted(small, ca
 
     prob = small[True].problem
     w0 = prob.initial_w({"mu_max": 0.79 * 0.7, "mu_min": 0.48 * 1.1, "tau": 0.067, "A": 0.015})
-    assert np.abs(prob.evaluate(w0)[1]).max() > 10 * nlp.SHARE_FEAS
-    with caplog.at_level(logging.DEBUG, logger="identify.nlp"):
-        prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP)
+    assert np.abs(prob.evaluate(w0)[1]).max() > 10 * arcs_mod.SHARE_FEAS
+    with caplog.at_level(logging.DEBUG, logger="identify.fitting"):
+        prob.jacobian_scheme("forward", arcs_mod.SOLVE_REL_STEP)
         out = prob.solve_gn(w0)
     said = caplog.text
     assert said.count("rejected on shared forward differences") == 1
     assert "sharing again" in said and out["shared"] and out["success"]
-    prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP, share=False)
+    prob.jacobian_scheme("forward", arcs_mod.SOLVE_REL_STEP, share=False)
     ref = prob.solve_gn(w0)
     assert ref["success"] and not ref["shared"]
     se = {n: small[True][n].stderr for n in FREE}

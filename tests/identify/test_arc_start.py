@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 from identify import SimulationOptions, simulate
-from identify.events import extract_events
-from identify.fit import FitOptions, _run_data
-from identify.laws import get_law
-from identify.model import Model
-from identify.nlp import START_MARGIN, Problem, below_top
-from identify.params import parameter_set
+from identify.fitting.driver import FitOptions, make_run_data
+from identify.fitting.problem import Problem
+from identify.fitting.triggers import START_MARGIN, below_top
+from identify.model.laws import get_law
+from identify.model.params import parameter_set
+from identify.model.symbolic import Model
+from identify.traces.events import extract_events
 
 V_STICK = 1e-5
 TRUTH = dict(parameter_set("FOTAS"), v_stick=V_STICK)
@@ -33,7 +34,7 @@ def _noiseless_traces(**tolerances):
 
 @pytest.fixture(scope="module")
 def noiseless_runs():
-    return [_run_data(extract_events(tr)) for tr in _noiseless_traces()]
+    return [make_run_data(extract_events(tr)) for tr in _noiseless_traces()]
 
 
 def _problem(runs, arc_start):

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from identify.candidates import CandidateTask, _at_magnitude
-from identify.nlp import ThetaMap
+from identify.diagnosis.candidates import CandidateTask, _at_magnitude
+from identify.fitting.problem import ThetaMap
 
 NEED = float(stats.chi2.isf(0.01, 1))  # 6.63: the χ²₁ quantile at the screen's p
 _TM = ThetaMap.build(("A",), {})
@@ -144,7 +144,7 @@ class _FarProblem(_Problem):
 
     def solve(self, w0, fixed):
         out = super().solve(w0, fixed)
-        from identify.candidates import GIVE_UP_AFTER
+        from identify.diagnosis.candidates import GIVE_UP_AFTER
 
         for it in (GIVE_UP_AFTER, GIVE_UP_AFTER + 1):
             self.asked.append(self.give_up_far(it, 0.5 * self.chi2_at, self.promised))
@@ -161,7 +161,7 @@ def test_far_from_continuity_it_stops_only_when_decisive(spare, stops):
     many quantiles; else it runs to its limit and settles nothing (measured: the load
     offset held at 2 µN, ½χ² ~38 000 against 175, 0.06-0.14 µm off continuity for 10
     iterations)."""
-    from identify.candidates import GIVE_UP_MARGIN, MAGNITUDE_DECISIVE
+    from identify.diagnosis.candidates import GIVE_UP_MARGIN, MAGNITUDE_DECISIVE
 
     promised = 50.0
     prob = _FarProblem(MAGNITUDE_DECISIVE * NEED + 2 * GIVE_UP_MARGIN * promised + spare, promised)
@@ -195,10 +195,11 @@ def test_the_runs_left_out_are_read_at_the_held_values(monkeypatch):
     """With runs left out for their regime, the check reads them at the values it held
     (the effect at its magnitude, the model's own parameters as refitted there) and says
     how far that point is from continuity; without them it reads nothing."""
-    import identify.candidates as cand
+    import identify.diagnosis.candidates as cand
 
     seen = []
-    monkeypatch.setattr(cand, "_regime", lambda task, values: seen.append(dict(values)) or dict(df=1, chi2=0.0))
+    monkeypatch.setattr(cand, "regime_of_left_out",
+                        lambda task, values: seen.append(dict(values)) or dict(df=1, chi2=0.0))
     prob = _Problem(1000.5, TO_0018)
     prob.evaluate = lambda w: (np.zeros(3), np.array([2e-4, -7e-4]))
     task = CandidateTask(effect="damping", runs=[], law="exponential", values={"A": 0.0236, "c_extra": 0.0, "vc": 1e-6},

@@ -1,4 +1,4 @@
-"""identify.compiled: JIT compile, cache on disk, reload; no files left in TMPDIR or cwd."""
+"""identify.model.compiled: JIT compile, cache on disk, reload; no files left in TMPDIR or cwd."""
 
 import json
 import math
@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = r"""
 import json, sys
 import casadi as ca
-from identify import compiled as c
+from identify.model import compiled as c
 
 x = ca.SX.sym("x")
 f = c.compiled(lambda o: ca.Function("f", [x], [ca.sin(x) * x], o), tag="f")
@@ -77,7 +77,7 @@ def test_casadi_event_notice_is_held_back_and_other_stderr_kept(capsys, monkeypa
     an integrator with events, is dropped; anything else written meanwhile reaches stderr."""
     import casadi as ca
 
-    from identify import compiled as c
+    from identify.model import compiled as c
 
     monkeypatch.setenv("NANOFRICTOR_JIT", "0")  # (the notice comes from creating the Function)
     x = ca.SX.sym("x")

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from identify.nlp import Problem
+from identify.fitting.problem import Problem
 
 
 def _fake(runs_of_slips, free_phase=False):

@@ -9,11 +9,11 @@ import pytest
 
 import identify
 from identify.cli import main
-from identify.diagnosis import DiagnosisOptions, diagnose
-from identify.effects import get_effect
-from identify.features import Layout, feature_values, gap
-from identify.heldout import exact_fold, folds_of, heldout_residuals
-from identify.where import misfit_sigma, where
+from identify.diagnosis.features import Layout, feature_values, gap
+from identify.diagnosis.heldout import exact_fold, folds_of, heldout_residuals
+from identify.diagnosis.rounds import DiagnosisOptions, diagnose
+from identify.diagnosis.where import misfit_sigma, where
+from identify.model.effects import get_effect
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "FOTAS"
 SMALL = [DATA / f"FOTAS_{n}.csv" for n in ("k2.13_Nb5uN_fp100Hz", "k2.13_Nb5uN_fp30Hz", "k20.3_Nb60uN_fp100Hz",
@@ -43,7 +43,7 @@ def test_misfit_sigma_scale():
 def test_misfit_tests_skip_rows_the_model_could_not_evaluate():
     """A NaN row (a refit whose model is not finite there) is left out of the least
     squares instead of reaching LAPACK ("DLASCL parameter number 4 had an illegal value")."""
-    from identify.where import _condition_trend, position_ripple
+    from identify.diagnosis.where import _condition_trend, position_ripple
 
     rng = np.random.default_rng(0)
     x = rng.uniform(0, 30e-6, 40)
@@ -79,7 +79,7 @@ def test_where_leaves_out_a_slip_the_model_could_not_evaluate(small_fit):
 def test_confounding_of_a_non_finite_information_says_so():
     from types import SimpleNamespace
 
-    from identify.candidates import _confounding
+    from identify.diagnosis.candidates import _confounding
 
     prob = SimpleNamespace(theta=SimpleNamespace(names=["mu_max", "A", "dc"]),
                            information=lambda w, evaluated=None: np.full((3, 3), np.nan))
@@ -160,7 +160,7 @@ def test_held_out_fold_left_linear_when_no_refit_is_asked(small_fit):
 def test_only_candidates_that_could_be_named_get_their_folds_refitted():
     from scipy import stats
 
-    from identify.candidates import SCREEN_P, CandidateTask, _could_be_named
+    from identify.diagnosis.candidates import SCREEN_P, CandidateTask, _could_be_named
 
     t = CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=(), null_chi2=1000.0,
                       null_n_eff=10)
@@ -190,7 +190,7 @@ def test_a_refit_that_cannot_become_nameable_is_stopped():
 
     from scipy import stats
 
-    from identify.candidates import GIVE_UP_AFTER, GIVE_UP_MARGIN, CandidateTask, _give_up
+    from identify.diagnosis.candidates import GIVE_UP_AFTER, GIVE_UP_MARGIN, CandidateTask, _give_up
 
     prob = SimpleNamespace(n_effective=lambda: 11, n_observations=lambda: 100, chi2_constant=lambda: 40.0)
     t = CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=(), null_chi2=1000.0,
@@ -213,7 +213,7 @@ def test_a_refit_that_cannot_become_nameable_is_stopped():
 
 
 def test_the_solver_stops_when_told_it_cannot_matter(small_fit):
-    from identify.nlp import GAVE_UP
+    from identify.fitting.convergence import GAVE_UP
 
     prob, w = small_fit.problem, small_fit.w.copy()
     w[: prob.n_theta] += 0.05
@@ -231,7 +231,7 @@ def test_the_solver_stops_when_told_it_cannot_matter(small_fit):
 def test_away_from_continuity_the_solver_asks_give_up_far(small_fit):
     """give_up is asked only within give_up_feas of continuity; give_up_far (the check at
     a candidate's realistic magnitude) anywhere else."""
-    from identify.nlp import GAVE_UP, GIVE_UP_FEAS
+    from identify.fitting.convergence import GAVE_UP, GIVE_UP_FEAS
 
     prob, w = small_fit.problem, small_fit.w.copy()
     w[prob.i_x + prob.ev_prev[prob.E // 2] + 1] += 0.05  # a plateau 50 nm off
@@ -319,7 +319,7 @@ def test_runs_without_slips_where_the_model_stick_slips_are_unexplained(tmp_path
 
 def test_runs_the_model_also_cannot_resolve_are_still_an_error():
     """Slips below the noise in data and model alike is no mismatch: nothing usable."""
-    from identify.fit import FitError
+    from identify.fitting.driver import FitError
 
     with pytest.raises(FitError, match="no run could be used"):
         diagnose([DATA.parent / "OTS" / "OTS_k2.13_Nb5uN_fp100Hz.csv"], fit_options=OPTS,
@@ -357,7 +357,7 @@ def test_options_and_cli_bad_input(capsys, tmp_path):
 
 
 def test_cli_resequence_reaches_the_options(monkeypatch, tmp_path):
-    import identify.diagnosis as dg
+    import identify.diagnosis.rounds as dg
 
     seen = []
 
@@ -432,7 +432,7 @@ MAX_IT = "Maximum_Iterations_Exceeded"
     ([(MAX_IT, 500.0), RuntimeError("arc failed")], 2, MAX_IT),
 ])
 def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds, status):
-    from identify.candidates import EXTRA_ROUNDS, _solve_on
+    from identify.diagnosis.candidates import EXTRA_ROUNDS, _solve_on
 
     prob = _FakeProblem(script)
     sol = _solve_on(prob, 0, 1000.0)
@@ -448,7 +448,7 @@ def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds, stat
 def test_a_refit_already_past_the_naming_screen_gets_more_rounds():
     """Measured (rejuvenation withheld at dc = 0.1 µm): still gaining after three rounds,
     p = 1e-68, and so not named; with more iterations it converged and was named."""
-    from identify.candidates import EXTRA_ROUNDS, EXTRA_ROUNDS_NAMEABLE, _solve_on
+    from identify.diagnosis.candidates import EXTRA_ROUNDS, EXTRA_ROUNDS_NAMEABLE, _solve_on
 
     gaining = [(MAX_IT, 1000.0 - 50.0 * i) for i in range(1, 12)]
     for nameable, rounds in ((None, EXTRA_ROUNDS + 1), (lambda f: False, EXTRA_ROUNDS + 1),
@@ -468,7 +468,7 @@ def test_a_refit_already_past_the_naming_screen_gets_more_rounds():
 @pytest.mark.parametrize("status, named", [("Solve_Succeeded", True), ("Stalled_Within_Tolerance", True),
                                            (MAX_IT, False)])
 def test_a_stalled_refit_can_be_named_an_unconverged_one_cannot(status, named):
-    from identify.diagnosis import _closed_fraction, _closes, _try
+    from identify.diagnosis.rounds import _closed_fraction, _closes, _try
 
     best = dict(effect="spring_nonlinearity", dr=np.ones(3), delta_aic=-14176.0, status=status,
                 estimate_text="beta = 9.8e8", gap=dict(noise_um=0.02), heldout_gap_before_um=0.097,
@@ -482,7 +482,7 @@ def test_a_stalled_refit_can_be_named_an_unconverged_one_cannot(status, named):
 
 
 def _cand(dnll, ho_dnll, ho_before=0.0205, ho_after=0.0212, noise=0.0150):
-    from identify.diagnosis import _closed_fraction, _explained_share
+    from identify.diagnosis.rounds import _closed_fraction, _explained_share
 
     base = dict(chi2=11098.4, n_obs=10769, n_eff=27)  # measured: A = 0.0045 data, baseline A = 0
     c = dict(delta_nll=dnll, heldout_delta_nll=ho_dnll, gap=dict(noise_um=noise), heldout_gap_before_um=ho_before,
@@ -497,7 +497,7 @@ def test_a_gap_at_the_encodings_floor_is_closed_by_the_likelihood():
     """Measured: A freed on data made with A = 0.0045 (baseline A = 0): Δnll 119.5 fitted, 142.5
     held out, but the held-out µm gap 20.5 -> 21.2 nm. It closes the gap; a candidate with the
     same fitted gain that loses it held out, or one that removes little of the excess χ², does not."""
-    from identify.diagnosis import _closes
+    from identify.diagnosis.rounds import _closes
 
     vs = _cand(119.5, 142.5)
     # excess χ² 356 over 10742 dof, floored at 3 chance σ (440)
@@ -513,9 +513,9 @@ def test_an_unconfirmed_held_out_gap_of_a_candidate_no_test_could_name_is_not_re
     """Where the linear leave-out step does not hold and the candidate cannot be named, the
     held-out gap is not computed (with the reason) rather than read off a linear prediction
     the model contradicts; a nameable one gets its folds refitted."""
-    import identify.candidates as cand
-    from identify.diagnosis import _tasks
-    from identify.heldout import HeldOut
+    import identify.diagnosis.candidates as cand
+    from identify.diagnosis.heldout import HeldOut
+    from identify.diagnosis.rounds import _tasks
 
     prob, w = small_fit.problem, small_fit.w
     r = prob.residuals(w)
@@ -541,7 +541,7 @@ def test_an_unconfirmed_held_out_gap_of_a_candidate_no_test_could_name_is_not_re
 
 
 def test_ripple_peaks_keep_the_leading_local_maxima():
-    from identify.where import RIPPLE_MAX_PEAKS, ripple_peaks
+    from identify.diagnosis.where import RIPPLE_MAX_PEAKS, ripple_peaks
 
     d2 = np.array([0.0, 5.0, 1.0, 9.0, 2.0, 2.0, 3.0, 0.5, 4.0, np.nan, 1.0])
     # local maxima 9 (3), 5 (1), 4 (8), 3 (6); a third of the highest is 3
@@ -556,11 +556,11 @@ def test_ripple_peaks_keep_the_leading_local_maxima():
 def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, monkeypatch):
     """Each periodogram peak is a basin of its own: the refit solves each and keeps the best
     end (on the benchmark's topography set the highest peak led to a wrong wavelength and
-    the seventh to the true one, identify.where.RIPPLE_PEAK_SHARE)."""
-    import identify.candidates as cand
-    from identify.diagnosis import _starts, _tasks
-    from identify.effects import get_effect
-    from identify.where import Misfit
+    the seventh to the true one, identify.diagnosis.where.RIPPLE_PEAK_SHARE)."""
+    import identify.diagnosis.candidates as cand
+    from identify.diagnosis.rounds import _starts, _tasks
+    from identify.diagnosis.where import Misfit
+    from identify.model.effects import get_effect
 
     peaks = [dict(wavelength_m=1.1e-6, amplitude=0.01, phase=2.9, delta_chi2=900.0),
              dict(wavelength_m=3.7e-6, amplitude=0.008, phase=-1.1, delta_chi2=480.0)]
@@ -605,7 +605,7 @@ def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, mo
 
 
 def test_the_likelihood_test_is_wired_into_naming_and_says_what_failed():
-    from identify.diagnosis import _closes, _try
+    from identify.diagnosis.rounds import _closes, _try
 
     for c, named, why in ((_cand(119.5, 142.5), True, None), (_cand(119.5, 30.0), False, "keeps 30.0 of its"),
                           (_cand(20.0, 20.0), False, "removes 9 % of the excess")):
@@ -620,9 +620,9 @@ def test_the_likelihood_test_is_wired_into_naming_and_says_what_failed():
 
 def _drift_folds(g, h, ho_total=None, names=None, without=0.3, base_chi2=424_000.0, at_floor=False,
                  without_after=0.05):
-    """A candidate scored per fold as :func:`identify.diagnosis._score` does (base χ² per
+    """A candidate scored per fold as :func:`identify.diagnosis.rounds._score` does (base χ² per
     fold 2·gain, the candidate's 0)."""
-    from identify.diagnosis import _closed_fraction, _explained_share, _heldout_by_fold
+    from identify.diagnosis.rounds import _closed_fraction, _explained_share, _heldout_by_fold
 
     g, h = np.asarray(g, float), np.asarray(h, float)
     n = len(g)
@@ -648,7 +648,7 @@ DRIFT_H = [1951, 14438, 10331, -271810, 242687, 2645, 20783, 3113]
 
 
 def test_one_run_whose_prediction_fails_does_not_veto_an_effect_the_others_confirm():
-    from identify.diagnosis import _closes, _try
+    from identify.diagnosis.rounds import _closes, _try
 
     c = _drift_folds(DRIFT_G, DRIFT_H)
     assert c["heldout_delta_nll"] == pytest.approx(24138, abs=1)  # 12 % of the fitted gain: the sum fails
@@ -666,7 +666,7 @@ def test_a_gain_that_lies_in_the_one_run_set_aside_is_not_named():
     """An overfitted run: the fitted gain lies in it and its prediction does not keep it;
     setting it aside leaves too little of the excess and the other runs' gap unchanged,
     and two failing runs are not one."""
-    from identify.diagnosis import _closes, _try
+    from identify.diagnosis.rounds import _closes, _try
 
     overfit = _drift_folds([10, 10, 10, 200_000, 10, 10, 10, 10], [5, 5, 5, 1000, 5, 5, 5, 5],
                            at_floor=True, without_after=0.3)
@@ -692,14 +692,14 @@ def test_a_run_the_candidate_fits_worse_is_never_set_aside():
     """A run whose fit the candidate makes worse contradicts it: setting it aside would
     leave a kept gain larger than the whole (the review's counter-example: held-out Δnll
     −95 000 in all, named before this guard)."""
-    from identify.diagnosis import _closes
+    from identify.diagnosis.rounds import _closes
 
     c = _drift_folds([2e4] * 7 + [-5e4], [1.5e4] * 7 + [-2e5])
     assert c["heldout_delta_nll"] < 0 and c["heldout_set_aside"] is None and not _closes(c)
 
 
 def test_the_note_of_a_run_set_aside_without_its_gaps():
-    from identify.diagnosis import _closes, _try
+    from identify.diagnosis.rounds import _closes, _try
 
     # no µm gaps without the run: named by the likelihood on the others (a gap at the floor)
     c = _drift_folds(DRIFT_G, DRIFT_H, without=float("nan"), at_floor=True)
@@ -709,7 +709,7 @@ def test_the_note_of_a_run_set_aside_without_its_gaps():
 
 
 def test_the_per_fold_chi2_of_k_folds():
-    from identify.candidates import _chi2_by_fold
+    from identify.diagnosis.candidates import _chi2_by_fold
 
     r = np.array([1.0, 2.0, np.nan, 3.0, 4.0, 5.0])
     row_run = np.array([0, 0, 1, 1, 2, 3])
@@ -720,7 +720,7 @@ def test_the_per_fold_chi2_of_k_folds():
 def test_score_sets_a_run_aside_from_the_workers_per_fold_chi2():
     """The wiring in _score: from the χ² a worker returns per fold to the named drift
     (the measured per-fold gains of 7c7f030, base χ² made up around them)."""
-    from identify.diagnosis import _score, _try
+    from identify.diagnosis.rounds import _score, _try
 
     base_fit = [4652.2, 26669.6, 21002.4, 125205.8, 187027.5, 10498.2, 41650.4, 7774.7]
     base_ho = [4623.6, 31191.3, 20685.8, 363723.8, 485793.7, 10498.2, 41664.6, 6283.2]
@@ -744,13 +744,13 @@ def test_score_sets_a_run_aside_from_the_workers_per_fold_chi2():
     assert c["heldout_set_aside"]["runs"] == ["run3"] and c["closes"]
     assert c["heldout_delta_nll"] == pytest.approx(0.5 * (sum(base_ho) - sum(drift_ho)))
     assert _try(c, [])[0] is c
-    from identify.diagnosis import _CAND_KEYS
+    from identify.diagnosis.rounds import _CAND_KEYS
 
     assert {"heldout_by_fold", "heldout_set_aside"} <= set(_CAND_KEYS)
 
 
 def test_held_out_gain_and_excess_share_edge_cases():
-    from identify.diagnosis import _explained_share, _heldout_dnll
+    from identify.diagnosis.rounds import _explained_share, _heldout_dnll
 
     a = dict(chi2=900.0, n_rows=334)
     assert _heldout_dnll(dict(chi2=1000.0, n_rows=334), a) == 50.0
@@ -765,7 +765,7 @@ def test_held_out_gain_and_excess_share_edge_cases():
 @pytest.fixture(scope="module")
 def offset_baseline():
     """A load offset (2 µN) on four short runs, fitted without it."""
-    from identify.withheld import QUICK_CONDITIONS, withheld_dataset
+    from identify.simulation.withheld import QUICK_CONDITIONS, withheld_dataset
 
     conds = [c for c in QUICK_CONDITIONS if (c[0], c[1], c[2]) in
              {(2.13, 5.0, 100.0), (2.13, 10.0, 100.0), (20.3, 30.0, 30.0), (20.3, 60.0, 100.0)}]
@@ -795,7 +795,7 @@ def test_a_named_model_decides_its_sequence_from_the_detected_one_too(offset_bas
     model's sequence is decided again from its own (where it stands here) and from the
     sequence as detected, and the lower excess χ² is kept (measured: χ² 2996.6 on the
     baseline's sequence, 2557.2 from the detected one), then measured in round 2."""
-    from identify.diagnosis import _as_detected
+    from identify.diagnosis.rounds import _as_detected
 
     runs = offset_baseline.problem.runs
     det = _as_detected(runs)
@@ -816,7 +816,7 @@ def test_auto_resequencing_only_while_the_named_model_misfits(offset_baseline):
     """The default decides the sequence again only while the named model's held-out gap is
     above the tolerance (measured: the topography set went from 1.51× the noise and
     `unexplained` to 1.08× and `adequate`); a model at the noise keeps its sequence."""
-    from identify.diagnosis import _at_noise
+    from identify.diagnosis.rounds import _at_noise
 
     opts = DiagnosisOptions()
     assert _at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.029)), opts)
@@ -835,7 +835,7 @@ def test_a_candidate_that_predicts_the_held_out_runs_worse_in_all_is_not_named()
     """Measured on the out-of-library set (each run's load ±15 % off, d54fbfe): the spring
     nonlinearity kept 4611 of its 7365 without the 10 Hz run (63 %), but its held-out Δnll
     over all runs was −4997; it was named then. Per-fold figures made up to those sums."""
-    from identify.diagnosis import _closes
+    from identify.diagnosis.rounds import _closes
 
     g = [1000.0, 1200.0, 800.0, 1500.0, 1238.4, 900.0, 900.0, 1064.8]
     h = [700.0, 700.0, 500.0, 900.0, -9608.7, 600.0, 600.0, 611.4]
@@ -852,7 +852,7 @@ def test_a_sequence_decided_again_is_measured_in_a_final_round(offset_baseline, 
     new runs (its held-out gap is the verdict's), not the named candidate's numbers."""
     import copy
 
-    import identify.diagnosis as dg
+    import identify.diagnosis.rounds as dg
 
     new_runs = []
 
@@ -873,7 +873,7 @@ def test_a_sequence_decided_again_is_measured_in_a_final_round(offset_baseline, 
 
 
 def test_a_sequence_that_cannot_be_decided_again_leaves_the_named_model(offset_baseline, monkeypatch):
-    import identify.diagnosis as dg
+    import identify.diagnosis.rounds as dg
 
     def broken(current, runs, fopts, prob0, say):
         raise RuntimeError("no arcs")
@@ -890,7 +890,7 @@ def test_away_from_the_encodings_floor_only_the_gap_in_um_names():
     """Measured on the out-of-library set (d6efe11): a load offset with Δnll 5276 fitted and
     8375 held out, while the held-out gap (4.8× the noise) went 92.2 -> 89.9 nm; it was
     named. The likelihood test is for a gap at the encoding's floor."""
-    from identify.diagnosis import _closes, _try
+    from identify.diagnosis.rounds import _closes, _try
 
     off = _cand(5275.8, 8375.5, ho_before=0.0922, ho_after=0.0899, noise=0.0190)
     assert not off["at_floor"] and off["explained_share"] > 0.3 and not _closes(off)
@@ -906,7 +906,7 @@ def test_a_weaker_candidate_is_not_named_while_a_better_one_could_not_be_judged(
     the held-out gap but ended Line_Search_Failed, and a load offset closing 38 % was named
     in its place. A converged better candidate that does not close still lets the next
     one be tried."""
-    from identify.diagnosis import _select
+    from identify.diagnosis.rounds import _select
 
     def cand(effect, daic, status, closes):
         return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic, status=status,
@@ -934,7 +934,7 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
     (ΔAIC −32.7) but confounded with μmax, μmin, τ, and a load offset the data do not have
     (ΔAIC −27.1, residual changes at cosine 0.57 to A's) was named. Now the load offset is
     refitted with A free too, and named only if it still gains significantly."""
-    import identify.diagnosis as dg
+    import identify.diagnosis.rounds as dg
 
     def cand(effect, daic, confounded):
         return dict(effect=effect, ok=True, significant=True, confounded_with=confounded, delta_aic=daic,
@@ -1004,7 +1004,7 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
 
 
 def test_a_choice_demoted_beside_a_rival_gives_way_to_the_next():
-    from identify.diagnosis import _choose
+    from identify.diagnosis.rounds import _choose
 
     def cand(effect, daic):
         return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
@@ -1035,7 +1035,7 @@ def test_a_candidate_that_explains_much_but_closes_little_is_judged_on_its_own_m
     fit moved 112 triggers and inserted 15 slips; the law removed 50 % of the excess χ²
     but closed 28 % of the held-out gap on that sequence, and nothing was named. Such a
     candidate is measured on the sequence it decides itself before a weaker one is tried."""
-    from identify.diagnosis import _choose, _select
+    from identify.diagnosis.rounds import _choose, _select
 
     def cand(effect, daic, closed, share):
         return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
@@ -1074,7 +1074,7 @@ def test_a_candidate_that_explains_much_but_closes_little_is_judged_on_its_own_m
 
 
 def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(monkeypatch):
-    import identify.diagnosis as dg
+    import identify.diagnosis.rounds as dg
 
     gaps = {"logarithmic": 0.05, "exponential": 0.15}  # held-out gap of each model once re-sequenced
     calls = []
@@ -1151,7 +1151,7 @@ def test_a_candidate_whose_interval_holds_its_null_is_not_named():
     Δnll 19.9 (p = 2.7e-10) with dc = 7.1 ± 8.0 nm, 95 % interval 0.8–64 nm about its null of
     20 nm, and its held-out gain lay in one run it did not fit better; it was named a third
     effect. The interval is the fit's own: dc's is on the log scale."""
-    from identify.diagnosis import _select, _try, _undetermined, _worth_own_sequence
+    from identify.diagnosis.rounds import _select, _try, _undetermined, _worth_own_sequence
 
     def cand(effect, daic, par, value, ci, null):
         return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
@@ -1200,10 +1200,10 @@ def _not_significant(effect, estimates, at_magnitude, r2=0.009):
 
 def test_a_refit_that_could_not_start_says_so():
     """A law's refit that stopped at once because the model is not differentiable at its
-    start (identify.nlp.NOT_DIFFERENTIABLE; measured: the logistic law from the
+    start (identify.fitting.convergence.NOT_DIFFERENTIABLE; measured: the logistic law from the
     exponential baseline) is no evidence, and not "a local solution" either."""
-    from identify.diagnosis import _score
-    from identify.nlp import NOT_DIFFERENTIABLE
+    from identify.diagnosis.rounds import _score
+    from identify.fitting.convergence import NOT_DIFFERENTIABLE
 
     est = dict(mu_max=dict(value=0.79, stderr=0.006), mu_min=dict(value=0.66, stderr=3e-18))
     base = _not_significant(None, est, None)
@@ -1217,7 +1217,7 @@ def test_a_candidate_absorbed_at_its_realistic_magnitude_is_reported_confounded_
     """The damping set's numbers (measured, 8 runs): the refit does not leave c_extra = 0,
     R² 0.009 with the model there, but held at 2e-5 N s/m it fits as well with A, μmin and
     μmax moved: confounded with them, never named; a magnitude the data exclude says so."""
-    from identify.diagnosis import _score
+    from identify.diagnosis.rounds import _score
 
     est = dict(A=dict(value=0.0236, stderr=0.0035), c_extra=dict(value=0.0, stderr=8.7e-7))
     moved = [dict(parameter="A", value=0.0236, at_magnitude=0.0181, z=-1.57),
@@ -1280,14 +1280,14 @@ def test_a_candidate_absorbed_at_its_realistic_magnitude_is_reported_confounded_
     m = c["at_magnitude"]
     assert m["absorbed"] and not m["better"] and m["delta_nll"] == pytest.approx(-1.0)
     assert m["partners"] == ["A", "mu_min"] and c["confounded_with"] == ["A", "mu_min"]
-    from identify.diagnosis import _CAND_KEYS
+    from identify.diagnosis.rounds import _CAND_KEYS
 
     assert "at_magnitude" in _CAND_KEYS
 
 
 def test_the_magnitude_checked_is_the_effects_realistic_one_parameter():
-    from identify.diagnosis import _magnitude
-    from identify.effects import display
+    from identify.diagnosis.rounds import _magnitude
+    from identify.model.effects import display
 
     assert _magnitude(get_effect("damping"), {"c_extra": 0.0}) == ("c_extra", 2e-5)
     assert _magnitude(get_effect("stick_threshold"), {"v_stick": 1e-5}) == ("v_stick", 1e-4)
@@ -1303,8 +1303,8 @@ def test_the_magnitude_check_on_model_made_data(small_fit):
     fits as well with nothing moved or unpinned: no partner."""
     import dataclasses
 
-    from identify.candidates import run_candidate
-    from identify.diagnosis import _tasks
+    from identify.diagnosis.candidates import run_candidate
+    from identify.diagnosis.rounds import _tasks
 
     prob, w = small_fit.problem, small_fit.w
     values = {**identify.parameter_set("FOTAS"), **prob.values, **small_fit.values}
@@ -1330,16 +1330,17 @@ def test_a_candidate_refit_stalled_near_continuity_counts_as_converged(small_fit
 
     import scipy.sparse as sp
 
-    from identify.candidates import ROUND_GAIN, _problem
-    from identify.diagnosis import _tasks
-    from identify.nlp import GIVE_UP_FEAS, STALL_FEAS, STALLED, Problem
+    from identify.diagnosis.candidates import ROUND_GAIN, candidate_problem
+    from identify.diagnosis.rounds import _tasks
+    from identify.fitting.convergence import GIVE_UP_FEAS, STALL_FEAS, STALLED
+    from identify.fitting.problem import Problem
 
     prob, w = small_fit.problem, small_fit.w
     values = {**identify.parameter_set("FOTAS"), **prob.values, **small_fit.values}
     current = dict(values=values, free=tuple(prob.theta.names), law="exponential", w=w, ev_M=np.array(prob.ev_M),
                    n_theta=prob.n_theta, chi2=1.0, n_eff=prob.n_effective())
     (_, task), _ = _tasks(("drift",), current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [])
-    cand = _problem(task, tuple(prob.theta.names) + ("drift_rate",))
+    cand = candidate_problem(task, tuple(prob.theta.names) + ("drift_rate",))
     assert (cand.stall_feas, cand.stall_tol) == (GIVE_UP_FEAS, ROUND_GAIN)
     assert (prob.stall_feas, prob.stall_tol) != (cand.stall_feas, cand.stall_tol)
     r, Jr, d, g = np.array([1.0]), sp.csr_matrix([[0.0]]), np.zeros(1), np.array([1.03e-4])
@@ -1354,7 +1355,7 @@ def test_a_singular_held_out_step_with_non_finite_entries_is_no_step(monkeypatch
     check of the linear prediction then refuses."""
     import scipy.sparse as sp
 
-    from identify import heldout
+    from identify.diagnosis import heldout
 
     def singular(_K, _b):
         raise RuntimeError("Factor is exactly singular")
@@ -1372,7 +1373,7 @@ def test_refits_go_to_the_workers_longest_first():
     law's fresh solve go first, the one-start refits after them in library order."""
     from types import SimpleNamespace
 
-    from identify.diagnosis import _expected_cost
+    from identify.diagnosis.rounds import _expected_cost
 
     def task(effect, starts=1, staged=False):
         return SimpleNamespace(effect=effect, starts=[{}] * starts, staged=staged)
@@ -1392,8 +1393,8 @@ def test_a_refit_that_ends_worse_than_the_current_model_tries_the_start_it_passe
     current model's 3.2e4; from the current values it converged to 5200). Ending worse
     than the current model, the other start is solved too and the better end kept; ending
     better, it is not."""
-    import identify.candidates as cand
-    from identify.diagnosis import _tasks
+    import identify.diagnosis.candidates as cand
+    from identify.diagnosis.rounds import _tasks
 
     prob, w = small_fit.problem, small_fit.w
     r = prob.residuals(w)
@@ -1422,7 +1423,7 @@ def test_a_refit_that_ends_worse_than_the_current_model_tries_the_start_it_passe
 def test_a_candidate_that_fit_better_at_its_magnitude_is_started_there_next_round(small_fit):
     """The two-effect set: the step size's refit stayed near its null (1 ± 0.013) while
     held at 1.05 it fit better; the next round retries it from 1.05 as well."""
-    from identify.diagnosis import _tasks
+    from identify.diagnosis.rounds import _tasks
 
     prob, w = small_fit.problem, small_fit.w
     r = prob.residuals(w)

@@ -1,6 +1,6 @@
 """The diagnosis on data whose effect the baseline does not have (slow: full diagnoses).
 
-Data: :func:`identify.withheld.withheld_dataset` — eight of the bundled conditions (the
+Data: :func:`identify.simulation.withheld.withheld_dataset` — eight of the bundled conditions (the
 300 Hz run at 100 Hz, off the stick threshold's knife edge; 8 runs, 90 nm, two frames
 per step) with one effect on. The confusion table over every effect and the
 detection limits are in ``tests/bench/bench_diagnosis.py``.
@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 
 import identify
-from identify.diagnosis import DiagnosisOptions, diagnose
-from identify.events import _jsonable
-from identify.withheld import CONDITIONS, withheld_dataset
+from identify.diagnosis.rounds import DiagnosisOptions, diagnose
+from identify.jsonio import jsonable as _jsonable
+from identify.simulation.withheld import CONDITIONS, withheld_dataset
 
 pytestmark = pytest.mark.slow
 

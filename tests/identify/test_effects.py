@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 import identify
-from identify.effects import EFFECTS, get_effect
-from identify.fit import FitOptions, _run_data, prepare_runs
-from identify.model import Model
-from identify.nlp import Problem
+from identify.fitting.driver import FitOptions, make_run_data, prepare_runs
+from identify.fitting.problem import Problem
+from identify.model.effects import EFFECTS, get_effect
+from identify.model.symbolic import Model
 
 REQUIRED = ("velocity_strengthening", "aging_logarithmic", "aging_logistic", "rejuvenation", "damping",
             "spring_nonlinearity", "spring_constant", "load_offset", "load_scale", "step_size", "topography",
@@ -57,7 +57,7 @@ def test_null_gives_back_the_baseline_and_the_effect_changes_the_data(eid):
     on = {**base, **eff.simulation_values()}
     camera = {n: on.pop(n) for n in ("exposure", "drift_rate") if n in on}
     # frames not centred in the half step intervals: with the default timing a blur within the
-    # frame interval never reaches a step and the frames do not change (identify.nlp)
+    # frame interval never reaches a step and the frames do not change (identify.fitting.problem)
     ph = 0.1 if eid == "motion_blur" else 0.5
     e0 = _run(base, frame_phase=ph).elongation
     e1 = _run(on, exposure_s=camera.get("exposure"), drift_rate_m_per_s=camera.get("drift_rate"),
@@ -68,7 +68,7 @@ def test_null_gives_back_the_baseline_and_the_effect_changes_the_data(eid):
 
 def _problem(trace, free, values=None):
     runs, excluded, coating = prepare_runs([trace])
-    rd = _run_data(runs[0])
+    rd = make_run_data(runs[0])
     vals = dict(identify.parameter_set("FOTAS"), v_stick=1e-5, **(values or {}))
     opts = FitOptions(free=free, fixed={})
     return Problem([rd], Model(), vals, opts).build(), rd
@@ -121,7 +121,7 @@ def test_motion_blur_term_matches_averaging_a_staircase():
 
 
 def test_withheld_datasets_switch_the_effect_on():
-    from identify.withheld import withheld_dataset
+    from identify.simulation.withheld import withheld_dataset
 
     cond = [(2.13, 5.0, 100.0, 3.0), (20.3, 30.0, 100.0, 3.0)]
     base = withheld_dataset(None, conditions=cond)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from identify import Trace, simulate
-from identify.events import (
+from identify.traces.events import (
     RunEvents,
     estimate_step_phase,
     extract_events,
@@ -306,7 +306,7 @@ def test_json_report_and_plot(run5):
     resid = ev.model_elongation() - clean.elongation
     assert np.sqrt(np.mean(resid**2)) < 0.2 * NOISE
 
-    from identify.plots_events import plot_events
+    from identify.plots.events import plot_events
 
     ax = plot_events(ev)
     assert ax.get_xlabel() == "time (s)" and "µm" in ax.get_ylabel()
@@ -329,7 +329,7 @@ def test_an_ambiguous_trigger_names_its_other_step():
     slip 56 carry +98 and +222 nm of noise, the best split of the frames falls a step
     late, and the detector says which other step the frames nearly allow. Every other
     slip is detected at its true step."""
-    from identify.events import AMBIGUOUS_RSS
+    from identify.traces.events import AMBIGUOUS_RSS
 
     run = simulate("OTS", spring_constant_N_per_m=20.3, normal_load_uN=30, step_frequency_Hz=30, travel_um=30,
                    stick_speed_m_per_s=1e-5)

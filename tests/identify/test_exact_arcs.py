@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 
 from identify import SimulationOptions, simulate
-from identify.arcs import arc_functions
-from identify.derivative_check import arc_case
-from identify.events import extract_events
-from identify.exact_arcs import ExactArcs, grazing_flags
-from identify.fit import FitOptions
-from identify.laws import get_law
-from identify.model import Model
-from identify.nlp import Problem
-from identify.params import parameter_set
-from identify.rundata import _run_data
+from identify.fitting.arcs import arc_functions
+from identify.fitting.derivative_check import arc_case
+from identify.fitting.driver import FitOptions
+from identify.fitting.exact_arcs import ExactArcs, grazing_flags
+from identify.fitting.problem import Problem
+from identify.fitting.rundata import make_run_data
+from identify.model.laws import get_law
+from identify.model.params import parameter_set
+from identify.model.symbolic import Model
+from identify.traces.events import extract_events
 
 V_STICK = 1e-5
 MODEL = Model(get_law("exponential"))
@@ -133,7 +133,7 @@ def test_grazing_flags_name_each_knife_edge():
 def test_arc_values_carry_their_jacobian_for_ipopt(fast_case):
     """Ipopt differentiates the NLP itself (its Lagrangian gradient): the arc-values
     callback has a Jacobian, and it is the Jacobian callback's, entry for entry."""
-    runs = [_run_data(extract_events(tr)) for tr in _traces([(2.13, 5, 100)], V_STICK)]
+    runs = [make_run_data(extract_events(tr)) for tr in _traces([(2.13, 5, 100)], V_STICK)]
     truth = dict(parameter_set("FOTAS"), v_stick=V_STICK)
     values = {**MODEL.defaults(truth), "drift_rate": 0.0, "exposure": 0.0}
     prob = Problem(runs, MODEL, values, FitOptions(fixed={"v_stick": V_STICK}, solver="ipopt")).build()
@@ -216,7 +216,7 @@ def test_fit_option_exact_puts_the_exact_jacobian_in_the_nlp():
     differences' to their own accuracy, ~1e-3 of the largest entry here)."""
     with pytest.raises(ValueError, match="'forward', 'central' or 'exact'"):
         FitOptions(arc_jacobian="adjoint")
-    runs = [_run_data(extract_events(tr)) for tr in _traces([(2.13, 5, 100)], V_STICK)]
+    runs = [make_run_data(extract_events(tr)) for tr in _traces([(2.13, 5, 100)], V_STICK)]
     truth = dict(parameter_set("FOTAS"), v_stick=V_STICK)
     values = {**MODEL.defaults(truth), "drift_rate": 0.0, "exposure": 0.0}
     jg = {}

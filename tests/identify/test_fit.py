@@ -10,11 +10,15 @@ import pytest
 
 from identify import SimulationOptions, simulate
 from identify.cli import main as cli_main
-from identify.fit import FitError, FitOptions, _run_data, fit, prepare_runs
-from identify.laws import get_law
-from identify.model import Model
-from identify.nlp import Problem
-from identify.params import parameter_set
+from identify.fitting import arcs as arcs_mod
+from identify.fitting import convergence as conv
+from identify.fitting import covariance as cov_mod
+from identify.fitting import gauss_newton as gn
+from identify.fitting.driver import FitError, FitOptions, fit, make_run_data, prepare_runs
+from identify.fitting.problem import Problem
+from identify.model.laws import get_law
+from identify.model.params import parameter_set
+from identify.model.symbolic import Model
 
 V_STICK = 1e-5  # the simulator's stick option; the data below are made with it
 
@@ -50,7 +54,7 @@ def test_nlp_jacobians_match_central_differences(small_traces):
     model = Model(get_law("exponential"))
     opts = FitOptions(fixed={"v_stick": V_STICK})
     values = dict(model.defaults(parameter_set(coating, {"v_stick": V_STICK})))
-    prob = Problem([_run_data(ev) for ev in runs], model, values, opts).build()
+    prob = Problem([make_run_data(ev) for ev in runs], model, values, opts).build()
     start = {"mu_max": 0.75, "mu_min": 0.5, "tau": 0.08, "A": 0.012}
     w = prob.initial_w(start)
     r, g, Jr, Jg = prob.evaluate(w, jac=True)
@@ -77,21 +81,20 @@ def test_a_loose_solve_stops_where_a_sequence_decision_can_and_the_fit_ends_tigh
     stops at LOOSE_STAT_TOL / LOOSE_FEAS_TOL: not later than the full solve from the same
     start, feasible to 0.1 nm, and its ½χ² within 0.1 of the full solve's (a sequence
     change is kept for a fall of 1). The fit's own result is always a full solve."""
-    from identify import nlp
 
     runs, _, coating = prepare_runs(small_traces)
     model = Model(get_law("exponential"))
     values = dict(model.defaults(parameter_set(coating, {"v_stick": V_STICK})))
-    prob = Problem([_run_data(ev) for ev in runs], model, values, FitOptions(fixed={"v_stick": V_STICK})).build()
+    prob = Problem([make_run_data(ev) for ev in runs], model, values, FitOptions(fixed={"v_stick": V_STICK})).build()
     w0 = prob.initial_w({"mu_max": 0.75, "mu_min": 0.5, "tau": 0.08, "A": 0.012})
     loose, tight = prob.solve(w0, loose=True), prob.solve(w0)
     assert loose["loose"] and "loose" not in tight and loose["success"] and tight["success"]
     assert loose["iterations"] <= tight["iterations"]  # (here both 3)
-    assert prob._violation(loose["w"]) < nlp.LOOSE_FEAS_TOL
+    assert prob._violation(loose["w"]) < conv.LOOSE_FEAS_TOL
     assert abs(loose["f"] - tight["f"]) < 0.1
     # the rule is the loose solve's own: with tolerances nothing fails, it stops at once
-    monkeypatch.setattr(nlp, "LOOSE_STAT_TOL", 1e9)
-    monkeypatch.setattr(nlp, "LOOSE_FEAS_TOL", 1e9)
+    monkeypatch.setattr(gn, "LOOSE_STAT_TOL", 1e9)
+    monkeypatch.setattr(gn, "LOOSE_FEAS_TOL", 1e9)
     assert prob.solve(w0, loose=True)["iterations"] == 1 < tight["iterations"]
     assert prob.solve(w0)["iterations"] == tight["iterations"]
     monkeypatch.undo()
@@ -112,7 +115,7 @@ def test_a_loose_solve_stops_where_a_sequence_decision_can_and_the_fit_ends_tigh
 def test_the_full_tolerance_solve_after_the_sequence(ends):
     """A loose solution is solved on to the full tolerance; if that fails the loose point
     stands, reported as not converged, never as the loose solve's success."""
-    from identify.fit import _full_tolerance
+    from identify.fitting.driver import _full_tolerance
 
     class Stub:
         def solve(self, w):
@@ -134,12 +137,13 @@ def test_the_full_tolerance_solve_after_the_sequence(ends):
 def test_arc_difference_schemes_agree(small_traces):
     """Forward differences (the iterations' step) and the covariance's secant central
     differences against central differences at 1e-6, arc by arc, input by input."""
-    from identify.nlp import COVARIANCE_REL_STEP, SOLVE_REL_STEP
+    from identify.fitting.arcs import SOLVE_REL_STEP
+    from identify.fitting.covariance import COVARIANCE_REL_STEP
 
     runs, _, coating = prepare_runs(small_traces)
     model = Model(get_law("exponential"))
     values = dict(model.defaults(parameter_set(coating, {"v_stick": V_STICK})))
-    prob = Problem([_run_data(ev) for ev in runs], model, values, FitOptions(fixed={"v_stick": V_STICK})).build()
+    prob = Problem([make_run_data(ev) for ev in runs], model, values, FitOptions(fixed={"v_stick": V_STICK})).build()
     w = prob.initial_w({"mu_max": 0.78, "mu_min": 0.49, "tau": 0.07, "A": 0.015})
     A = np.array(prob._arc_inputs(w))
     rows = prob._cb_jac.rows
@@ -273,9 +277,7 @@ def test_uncertainty_under_other_covariances(small_fit):
 def test_a_parameter_the_bread_cannot_fix_has_no_interval_in_any_covariance(small_fit, monkeypatch):
     """Whatever the meat, a parameter whose information is singular (here τ, made so)
     has no standard error, and its row and column are NaN, not the sandwich's."""
-    import identify.nlp as nlp_mod
-
-    solve = nlp_mod._information_solve
+    solve = cov_mod._information_solve
     i_tau = list(small_fit.problem.theta.names).index("tau")
 
     def tau_undetermined(K, rhs, n_primal=None):
@@ -284,7 +286,7 @@ def test_a_parameter_the_bread_cannot_fix_has_no_interval_in_any_covariance(smal
         und[i_tau] = True
         return sol, und
 
-    monkeypatch.setattr(nlp_mod, "_information_solve", tau_undetermined)
+    monkeypatch.setattr(cov_mod, "_information_solve", tau_undetermined)
     for mode in ("robust", "cluster", "model"):
         C = small_fit.problem.covariance(small_fit.w, robust=mode)
         assert np.isnan(C[i_tau]).all() and np.isnan(C[:, i_tau]).all(), mode
@@ -295,7 +297,7 @@ def test_a_parameter_the_bread_cannot_fix_has_no_interval_in_any_covariance(smal
 
 
 def test_a_staged_start_that_fits_worse_is_rejected(small_traces, monkeypatch):
-    import identify.start as start_mod
+    import identify.fitting.start as start_mod
 
     truth = parameter_set("FOTAS")
     # what a misled aging stage did on a two-condition plan: τ 8x too high, A at its floor
@@ -310,7 +312,7 @@ def _suspect_once(monkeypatch):
     """The fit's first solution is called suspect, every later one not."""
     import importlib
 
-    fit_mod = importlib.import_module("identify.fit")  # (the package exports the function fit)
+    fit_mod = importlib.import_module("identify.fitting.driver")  # (the package exports the function fit)
     calls = []
 
     def suspect_once(prob, res):
@@ -335,7 +337,7 @@ def test_a_suspect_solution_is_solved_again_from_the_unstaged_start(small_traces
 def test_a_suspect_solution_is_solved_again_from_a_rejected_staged_start(small_traces, monkeypatch):
     """The start's χ² does not say where a solve ends (the 5-run benchmark: staged start
     rejected, the other stalled): a suspect solution tries the start that was not taken."""
-    import identify.start as start_mod
+    import identify.fitting.start as start_mod
 
     truth = parameter_set("FOTAS")
     monkeypatch.setattr(start_mod, "staged_start",
@@ -351,9 +353,8 @@ def test_a_suspect_solution_is_solved_again_from_a_rejected_staged_start(small_t
 
 
 def test_long_solves_report_their_iterations(small_traces, monkeypatch):
-    import identify.nlp as nlp
 
-    monkeypatch.setattr(nlp, "PROGRESS_EVERY_S", 0.0)
+    monkeypatch.setattr(gn, "PROGRESS_EVERY_S", 0.0)
     said = []
     fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}), progress=said.append)
     its = [m for m in said if m.strip().startswith("iteration")]
@@ -377,7 +378,7 @@ def _late_trigger(ev, j, margin):
 
 
 def test_other_step_puts_moved_neighbours_back():
-    from identify.sequence import _other_step
+    from identify.fitting.sequence import _other_step
 
     detected = np.array([10, 20, 30, 40, 50])
     # slip 2 detected at 30, its alternative 29; the mode sequence had moved slip 3 to 42
@@ -395,7 +396,7 @@ def test_trigger_misfit_reads_the_slip_and_the_next_two():
     slip nearest the step and the two after it, in that run only (a first slip has none)."""
     from types import SimpleNamespace
 
-    from identify.sequence import _trigger_misfit
+    from identify.fitting.sequence import _trigger_misfit
 
     # run 0: events 0-4 at steps 10-50; run 1: events 5-6; trigger rows from 3, one per
     # event with a predecessor (ev_next), in that order
@@ -419,10 +420,10 @@ def test_an_ambiguous_trigger_is_tried_at_its_other_step(small_traces, margin, m
     themselves.)"""
     import importlib
 
-    from identify.events import extract_events
+    from identify.traces.events import extract_events
 
     monkeypatch.setattr(Problem, "refine_triggers", lambda self, w, **kw: ({}, 0))
-    monkeypatch.setattr(importlib.import_module("identify.fit"), "missed_slips", lambda prob, w: ({}, 0))
+    monkeypatch.setattr(importlib.import_module("identify.fitting.driver"), "missed_slips", lambda prob, w: ({}, 0))
 
     evs = [extract_events(t) for t in small_traces]
     j = len(evs[0].slips["trigger_step"]) // 2
@@ -443,7 +444,7 @@ def test_an_ambiguous_trigger_is_tried_at_its_other_step(small_traces, margin, m
 
 
 def test_the_changes_tried_where_a_trigger_misfits():
-    from identify.sequence import _moves
+    from identify.fitting.sequence import _moves
 
     m = {label: (steps, kind, n) for label, steps, kind, n in _moves(np.array([10, 15, 20, 25]), 2, 17, 40)}
     assert m["slip at step 20 to 19"] == ([10, 15, 19, 25], "moved", 1)
@@ -467,7 +468,7 @@ def test_a_change_has_one_key_however_it_is_reached():
     """The pass does not try a change twice: its key is the triggers it changed and
     their unchanged neighbours, the same from either flagged slip and after a change
     kept further along the run; a change near it gives another key."""
-    from identify.sequence import LOCAL_SLIPS, _local
+    from identify.fitting.sequence import LOCAL_SLIPS, _local
 
     T = [10 * j for j in range(1, 21)]
     shift = lambda steps: [s + 1 if s == 110 else s for s in steps]  # noqa: E731
@@ -484,7 +485,7 @@ def test_a_change_has_one_key_however_it_is_reached():
 def test_flagged_triggers_worst_first():
     from types import SimpleNamespace
 
-    from identify.sequence import _flagged
+    from identify.fitting.sequence import _flagged
 
     runs = [SimpleNamespace(trigger_steps=np.array([10, 20, 30, 40, 50])),
             SimpleNamespace(trigger_steps=np.array([10, 20]))]
@@ -502,7 +503,7 @@ def test_predicted_shifts_follow_the_trigger_residuals():
     (its residual rings), as is one the model cannot evaluate and one within the gate."""
     from types import SimpleNamespace
 
-    from identify.sequence import BATCH_REACH, _predicted_shifts
+    from identify.fitting.sequence import BATCH_REACH, _predicted_shifts
 
     steps = np.arange(10, 130, 10)  # run 0: twelve slips; run 1: two
     runs = [SimpleNamespace(trigger_steps=steps), SimpleNamespace(trigger_steps=np.array([10, 20]))]
@@ -534,11 +535,11 @@ def test_many_late_triggers_are_moved_in_one_trial(small_traces, monkeypatch, ru
     sequence."""
     import importlib
 
-    import identify.sequence as seq
-    from identify.events import extract_events
+    import identify.fitting.sequence as seq
+    from identify.traces.events import extract_events
 
     monkeypatch.setattr(Problem, "refine_triggers", lambda self, w, **kw: ({}, 0))
-    monkeypatch.setattr(importlib.import_module("identify.fit"), "missed_slips", lambda prob, w: ({}, 0))
+    monkeypatch.setattr(importlib.import_module("identify.fitting.driver"), "missed_slips", lambda prob, w: ({}, 0))
     if batch == "off":
         monkeypatch.setattr(seq, "BATCH_MIN", 4)
     evs = [extract_events(t) for t in small_traces]
@@ -575,7 +576,7 @@ def test_insertions_go_with_the_first_moves_that_do_not_meet_them():
     first); a move that meets or crosses an inserted slip is left to the next round."""
     from types import SimpleNamespace
 
-    from identify.fit import _with_insertions
+    from identify.fitting.driver import _with_insertions
 
     prob = SimpleNamespace(runs=[SimpleNamespace(trigger_steps=np.array([10, 20, 30, 40])),
                                  SimpleNamespace(trigger_steps=np.array([5, 15]))])
@@ -615,18 +616,18 @@ def test_a_changed_sequence_keeps_the_starts_and_arcs_it_did_not_change(small_fi
     position (and so its arc, not integrated again), where each had been set
     mid-interval and synced from scratch; the slip moved and the one after it are
     synced, and every start ends within CARRY_START_TOL of its target."""
-    import identify.sequence as seq
+    import identify.fitting.sequence as seq
 
     prob, w = small_fit.problem, small_fit.w
     ri = 0
     steps = np.array(prob.runs[ri].trigger_steps, int).copy()
     j = len(steps) // 2
     steps[j] += 1
-    pairs = seq._unchanged_slips(prob, seq._with_triggers(prob, w, {}, prob.model, prob.values, prob.opts,
+    pairs = seq._unchanged_slips(prob, seq.with_triggers(prob, w, {}, prob.model, prob.values, prob.opts,
                                                            lambda m: None)[0])
     assert len(pairs) == prob.n_trig  # the same sequence: every slip with a predecessor
     before = prob.arcs.n_integrated
-    new, w_new = seq._with_triggers(prob, w, {ri: steps}, prob.model, prob.values, prob.opts, lambda m: None)
+    new, w_new = seq.with_triggers(prob, w, {ri: steps}, prob.model, prob.values, prob.opts, lambda m: None)
     spent = prob.arcs.n_integrated - before
     pairs = seq._unchanged_slips(prob, new)
     assert len(pairs) == prob.n_trig - 2  # the moved slip and the one after it
@@ -646,7 +647,7 @@ def test_a_run_alone_has_the_whole_problems_rows(small_fit):
     """A mode-sequence trial solves one run with the parameters held: at the fitted w
     that run's residuals are the whole problem's rows for it, so the runs' excess χ²
     add up to the whole problem's, and the run's variables map back where they were."""
-    from identify.sequence import _alone, _excess, _run_index, _split
+    from identify.fitting.sequence import _alone, _run_index, _split, excess_chi2
 
     prob, w = small_fit.problem, small_fit.w
     model = prob.model
@@ -656,11 +657,11 @@ def test_a_run_alone_has_the_whole_problems_rows(small_fit):
         assert sub.n_theta == 0 and sub.n_w == len(w_sub)
         r = sub.residuals(w_sub)
         rows.append(r)
-        total += _excess(sub, r)
-        assert sum(_split(sub, r)) == pytest.approx(_excess(sub, r), rel=1e-12)  # frames and triggers
+        total += excess_chi2(sub, r)
+        assert sum(_split(sub, r)) == pytest.approx(excess_chi2(sub, r), rel=1e-12)  # frames and triggers
         np.testing.assert_array_equal(w[_run_index(prob, i)], w_sub)
     r_all = prob.residuals(w)
-    assert total == pytest.approx(_excess(prob, r_all), rel=1e-10)
+    assert total == pytest.approx(excess_chi2(prob, r_all), rel=1e-10)
     np.testing.assert_allclose(np.sort(np.concatenate(rows)), np.sort(r_all), rtol=1e-10, atol=1e-12)
 
 
@@ -670,7 +671,7 @@ def test_a_run_alone_maps_every_layout(small_fit, layout):
     the other layouts too (an offset per run, no start variables, free phases)."""
     from dataclasses import replace
 
-    from identify.sequence import _alone, _excess, _run_index
+    from identify.fitting.sequence import _alone, _run_index, excess_chi2
 
     opts = replace(small_fit.problem.opts, **layout)
     prob = Problem(small_fit.problem.runs, small_fit.problem.model, small_fit.problem.values, opts).build()
@@ -682,8 +683,8 @@ def test_a_run_alone_maps_every_layout(small_fit, layout):
         sub, w_sub = _alone(prob, w, i, prob.model, opts, None)
         np.testing.assert_array_equal(w[_run_index(prob, i)], w_sub)
         assert sub.n_w == len(w_sub) and sub.n_off == prob.n_off // len(prob.runs)
-        total += _excess(sub, sub.residuals(w_sub))
-    assert total == pytest.approx(_excess(prob, prob.residuals(w)), rel=1e-10)
+        total += excess_chi2(sub, sub.residuals(w_sub))
+    assert total == pytest.approx(excess_chi2(prob, prob.residuals(w)), rel=1e-10)
 
 
 def test_a_kept_change_ends_on_its_full_solve():
@@ -691,7 +692,7 @@ def test_a_kept_change_ends_on_its_full_solve():
     short solve (whose point may violate the constraints); only a failed one does not."""
     from types import SimpleNamespace
 
-    from identify.sequence import _keep
+    from identify.fitting.sequence import _keep
 
     opts = FitOptions(fixed={"v_stick": V_STICK})
     short = dict(w=np.zeros(2), f=1.0, status="Maximum_Iterations_Exceeded", success=False, iterations=4, wall_s=0.1)
@@ -705,11 +706,11 @@ def test_a_kept_change_ends_on_its_full_solve():
 
 
 def test_the_joint_solve_after_a_pass_adds_to_the_fits_count():
-    """Kept changes are solved jointly once per pass (:func:`identify.sequence._joint`):
+    """Kept changes are solved jointly once per pass (:func:`identify.fitting.sequence._joint`):
     its iterations and time add to those the solution carries, and it says so."""
     from types import SimpleNamespace
 
-    from identify.sequence import _joint
+    from identify.fitting.sequence import _joint
 
     opts = FitOptions(fixed={"v_stick": V_STICK})
     said = []
@@ -734,7 +735,7 @@ def _detected_at(ev, triggers):
     plateaus by step (those left out as moving stay out)."""
     import dataclasses
 
-    from identify.rundata import _plateaus_from_triggers
+    from identify.fitting.rundata import plateaus_from_triggers
 
     triggers = np.asarray(triggers, int)
     old = np.asarray(ev.slips["trigger_step"])
@@ -745,7 +746,7 @@ def _detected_at(ev, triggers):
     slips["alt_margin"] = np.full(len(triggers), np.inf)
     q = np.r_[0, np.clip(np.searchsorted(old, triggers, side="right"), 0, len(old))]
     plateaus = {k: np.asarray(v)[q].copy() for k, v in ev.plateaus.items()}
-    pof = _plateaus_from_triggers(ev, triggers)
+    pof = plateaus_from_triggers(ev, triggers)
     pof[ev.plateau_of_frame < 0] = -1
     return dataclasses.replace(ev, plateau_of_frame=pof, slips=slips, plateaus=plateaus)
 
@@ -759,10 +760,10 @@ def test_a_wrong_slip_is_repaired_where_its_trigger_misfits(small_traces, error,
     (``sequence_trials=0``) the wrong sequence stays."""
     import importlib
 
-    from identify.events import extract_events
+    from identify.traces.events import extract_events
 
     monkeypatch.setattr(Problem, "refine_triggers", lambda self, w, **kw: ({}, 0))
-    monkeypatch.setattr(importlib.import_module("identify.fit"), "missed_slips", lambda prob, w: ({}, 0))
+    monkeypatch.setattr(importlib.import_module("identify.fitting.driver"), "missed_slips", lambda prob, w: ({}, 0))
     evs = [extract_events(t) for t in small_traces]
     true = np.asarray(evs[1].slips["trigger_step"], int)
     j = len(true) // 2
@@ -789,11 +790,10 @@ def _polished(small_fit) -> np.ndarray:
     stat_tol; the fit stops within NEAR_TOL): the point the scripted solves below were
     measured from. They script the solver's rules on each arc's own forward differences
     (the sharing among nearly equal arcs, SHARE_TOL, is tested on its own)."""
-    import identify.nlp as nlp
 
     if getattr(small_fit, "_polished_w", None) is None:
         prob = small_fit.problem
-        prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP, share=False)
+        prob.jacobian_scheme(prob.opts.arc_jacobian, arcs_mod.SOLVE_REL_STEP, share=False)
         prob.near_tol = 0.0
         try:
             small_fit._polished_w = prob.solve_gn(small_fit.w.copy())["w"]
@@ -804,13 +804,12 @@ def _polished(small_fit) -> np.ndarray:
 
 def _off_solution(small_fit):
     """The fitted problem and its solution with one slip-length constraint violated by 1 nm."""
-    import identify.nlp as nlp
 
     prob = small_fit.problem
     # the solver's differences, as Problem.solve sets them (the fit leaves the problem on
     # the covariance's central ones, with which this solve stalled at a 1.5e-6 violation
     # on one machine and converged on another)
-    prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP, share=False)
+    prob.jacobian_scheme(prob.opts.arc_jacobian, arcs_mod.SOLVE_REL_STEP, share=False)
     w = _polished(small_fit)
     e = prob.E // 2
     w[prob.i_x + prob.ev_prev[e] + 1] += 1e-3  # the plateau after slip e, 1 nm up
@@ -822,7 +821,6 @@ def test_a_solve_whose_arc_jacobian_is_wrong_stops_as_stalled(small_fit, monkeyp
     for its 100 iterations. Since the line search stops where a step could gain less than
     stat_tol, such steps are rejected and the damping ladder (1e-3 … 1e8) ends the solve;
     before, the accepted idle steps ended it as stalled."""
-    import identify.nlp as nlp
 
     prob, w, e = _off_solution(small_fit)
     exact = prob.solve_gn(w)
@@ -830,7 +828,7 @@ def test_a_solve_whose_arc_jacobian_is_wrong_stops_as_stalled(small_fit, monkeyp
     # damping they raise decays again; 5 before the line-search floor)
     assert exact["success"] and exact["iterations"] <= 10
     # (the exact solve may have switched to central differences at its feasible tail)
-    prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP, share=False)
+    prob.jacobian_scheme(prob.opts.arc_jacobian, arcs_mod.SOLVE_REL_STEP, share=False)
     true_evaluate = prob.evaluate
 
     def wrong_row(w, jac=False):
@@ -846,19 +844,18 @@ def test_a_solve_whose_arc_jacobian_is_wrong_stops_as_stalled(small_fit, monkeyp
     # stopped early, and not called converged: the 1 nm violation is still there
     assert res["status"] in ("Stalled", "Line_Search_Failed") and not res["success"], res["status"]
     assert res["iterations"] <= 16  # the damping ladder: 12 rejections from lm = 0
-    assert np.abs(true_evaluate(res["w"])[1]).max() > nlp.STALL_FEAS
+    assert np.abs(true_evaluate(res["w"])[1]).max() > conv.STALL_FEAS
 
 
 def _gn_step(prob, w):
     """(max |g|, ½‖Jᵣd‖², ∇f·d, multipliers) of the undamped Gauss–Newton step at w."""
-    import identify.nlp as nlp
 
     lbx, ubx = prob.bounds()
     free = np.nonzero(lbx < ubx)[0]
     r, g, Jr, Jg = prob.evaluate(w, jac=True)
     grad = Jr.T @ r
     d = np.zeros(prob.n_w)
-    sol = nlp._kkt_solve((Jr.T @ Jr).tocsc(), Jg, grad, g, free)
+    sol = conv.kkt_solve((Jr.T @ Jr).tocsc(), Jg, grad, g, free)
     d[free] = sol[: len(free)]
     return np.abs(g).max(), 0.5 * float(np.sum((Jr @ d) ** 2)), float(grad @ d), sol[len(free):]
 
@@ -882,18 +879,17 @@ def test_a_violation_at_the_arcs_noise_does_not_hold_a_converged_solve(small_fit
     carries the multipliers times the violation (here 0.004 of ½χ²). The solve stops at
     once as converged (measured on the 5-run speed benchmark: judged on that gain, its
     first solve went on from iteration 10 to 13; the fit 566 → 435 s with the new test)."""
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, _polished(small_fit)
-    prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP, share=False)
+    prob.jacobian_scheme(prob.opts.arc_jacobian, arcs_mod.SOLVE_REL_STEP, share=False)
     _strict(prob, monkeypatch)  # (the tight rule is this test's subject)
     # the violation at w 0.9 FEAS_TOL against each multiplier's sign, the fit's own taken
     # out: the promise then carries ½Σ|λ|·0.9 FEAS_TOL
     lam = _gn_step(prob, w)[3]
-    _violate(prob, w, -0.9 * nlp.FEAS_TOL * np.sign(lam), monkeypatch)
+    _violate(prob, w, -0.9 * conv.FEAS_TOL * np.sign(lam), monkeypatch)
     feas, moves, grad_d, _ = _gn_step(prob, w)
     promises = -0.5 * grad_d
-    assert feas < nlp.FEAS_TOL
+    assert feas < conv.FEAS_TOL
     # the case this is about: the old test (the promise) would go on, the new one stops
     assert moves < prob.stat_tol < promises, (moves, promises)
     res = prob.solve_gn(w)
@@ -912,10 +908,9 @@ def test_a_step_that_barely_moves_the_model_ends_the_solve_above_feas_tol(small_
     multiplier times the violation. By 5 pm on the constraint with the smallest
     multiplier it is inside STALL_TOL and the solve stops at once; by 50 pm on the
     largest it is not (the model itself hardly moves), and the solve goes on."""
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, _polished(small_fit)
-    prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP, share=False)
+    prob.jacobian_scheme(prob.opts.arc_jacobian, arcs_mod.SOLVE_REL_STEP, share=False)
     lam = _gn_step(prob, w)[3]
     i = int(np.argmin(np.abs(lam)) if which == "weakest" else np.argmax(np.abs(lam)))
     g = np.zeros_like(lam)
@@ -923,9 +918,9 @@ def test_a_step_that_barely_moves_the_model_ends_the_solve_above_feas_tol(small_
     _violate(prob, w, g, monkeypatch)
     feas, moves, grad_d, _ = _gn_step(prob, w)
     change = abs(grad_d + moves)  # ½χ²'s change along the full step
-    assert nlp.FEAS_TOL < feas < nlp.STALL_FEAS  # (the tight rule cannot stop it)
+    assert conv.FEAS_TOL < feas < conv.STALL_FEAS  # (the tight rule cannot stop it)
     stops = which == "weakest"
-    assert moves < nlp.NEAR_TOL and (change < nlp.STALL_TOL) == stops, (moves, change)
+    assert moves < gn.NEAR_TOL and (change < conv.STALL_TOL) == stops, (moves, change)
     res = prob.solve_gn(w)
     if stops:
         assert res["status"] == "Solve_Succeeded" and res["iterations"] == 1
@@ -946,7 +941,6 @@ def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, 
     Jacobian noise did in the 5-run speed benchmark's tail (16 iterations, ~100 s, for
     3e-4 of ½χ²). Four iterations, accepted or rejected, that do not lower ½χ² by
     STALL_TOL end the solve as converged within tolerance; without the rule it does not."""
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, _polished(small_fit)
     _on_central(prob)  # (no switch from forward differences in between)
@@ -967,15 +961,15 @@ def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, 
     feas, moves, grad_d, _ = _gn_step(prob, w)
     assert feas < prob.feas_tol and moves > prob.stat_tol  # (the tight rule cannot stop it)
     res = prob.solve_gn(w)
-    assert (res["status"], res["success"]) == (nlp.STALLED, True)
-    assert res["iterations"] == nlp.FLAT_ITERS + 1
-    assert half(res["w"]) < half(w) + nlp.STALL_TOL
+    assert (res["status"], res["success"]) == (conv.STALLED, True)
+    assert res["iterations"] == gn.FLAT_ITERS + 1
+    assert half(res["w"]) < half(w) + conv.STALL_TOL
     # without the rule the solve does not end there judged converged: it goes on, or
     # (from the fit's point once the arcs' differences were shared) the stall rule ends it
     # at the same iteration as not converged ("Stalled")
     monkeypatch.setattr(prob, "flat_iters", 0)
     res = prob.solve_gn(w)
-    assert res["iterations"] > nlp.FLAT_ITERS + 1 or not res["success"], res["status"]
+    assert res["iterations"] > gn.FLAT_ITERS + 1 or not res["success"], res["status"]
 
 
 def test_the_flat_tail_rule_leaves_a_step_that_still_promises_much_to_the_ladder(small_fit, monkeypatch):
@@ -983,7 +977,6 @@ def test_the_flat_tail_rule_leaves_a_step_that_still_promises_much_to_the_ladder
     trial point worse: ½χ² does not fall for many iterations, but the undamped step
     promises more than FLAT_PROMISE, so the flat-tail rule does not call it converged;
     the solve ends as it does with the rule off (the damping ladder and its judgement)."""
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, _polished(small_fit)
     _on_central(prob)
@@ -991,12 +984,12 @@ def test_the_flat_tail_rule_leaves_a_step_that_still_promises_much_to_the_ladder
     w[0] += 1e-2
     w = prob.solve_gn(w, fixed={0: w[0]})["w"]  # feasible, μmax held off
     feas, moves, _, _ = _gn_step(prob, w)
-    assert feas < nlp.FEAS_TOL and moves > nlp.FLAT_PROMISE, (feas, moves)
+    assert feas < conv.FEAS_TOL and moves > gn.FLAT_PROMISE, (feas, moves)
     _worse_away_from(w, prob, monkeypatch)
     on = prob.solve_gn(w)
     monkeypatch.setattr(prob, "flat_iters", 0)
     off = prob.solve_gn(w)
-    assert on["iterations"] > nlp.FLAT_ITERS + 1
+    assert on["iterations"] > gn.FLAT_ITERS + 1
     assert (on["status"], on["success"], on["iterations"]) == (off["status"], off["success"], off["iterations"])
 
 
@@ -1008,7 +1001,6 @@ def test_a_start_where_a_parameter_is_not_differentiable_ends_at_once(small_fit,
     fit's own start is 1e-10 of that away from the rule."""
     import scipy.sparse as sp
 
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, small_fit.w.copy()
     Jr = prob.evaluate(w, jac=True)[2]
@@ -1024,7 +1016,7 @@ def test_a_start_where_a_parameter_is_not_differentiable_ends_at_once(small_fit,
 
     monkeypatch.setattr(prob, "evaluate", steep)
     res = prob.solve_gn(w)
-    assert res["status"] == nlp.NOT_DIFFERENTIABLE and not res["success"] and res["iterations"] == 1
+    assert res["status"] == conv.NOT_DIFFERENTIABLE and not res["success"] and res["iterations"] == 1
     assert np.array_equal(res["w"], w)
 
 
@@ -1045,9 +1037,8 @@ def _on_central(prob):
     """The solver's differences, central: a step on forward ones that the line search
     rejects is first taken again on central ones (tested on its own), which would add
     an iteration to the ladders scripted here."""
-    import identify.nlp as nlp
 
-    prob.jacobian_scheme("central", nlp.SOLVE_REL_STEP)
+    prob.jacobian_scheme("central", arcs_mod.SOLVE_REL_STEP)
 
 
 def _strict(prob, monkeypatch):
@@ -1080,7 +1071,6 @@ def test_the_damping_ladder_ends_when_no_damping_can_move_the_step(small_fit, mo
     the ladder ends there, after five rejections instead of thirteen; with the parameters
     held (a run solved alone), after one. μmax off: the step is the parameters', the
     damping shrinks what it promises rung by rung (reach 0.20 … 0.023, 0.0026), ten."""
-    import identify.nlp as nlp
 
     prob, w, _ = _off_solution(small_fit)
     _on_central(prob)
@@ -1098,7 +1088,7 @@ def test_the_damping_ladder_ends_when_no_damping_can_move_the_step(small_fit, mo
     monkeypatch.setattr(prob, "_damping_reach", lambda *a: reach.append(true_reach(*a)) or reach[-1])
     res = prob.solve_gn(w, fixed)
     assert np.array_equal(res["w"], w)
-    ends = [m < nlp.LADDER_REACH and s < nlp.LADDER_STEP for m, s in reach]
+    ends = [m < gn.LADDER_REACH and s < gn.LADDER_STEP for m, s in reach]
     assert ends[-1] and not any(ends[:-1]), reach
     assert res["iterations"] == len(reach) == {"plateau": 5, "plateau, parameters held": 1, "mu_max": 10}[off], reach
     # the same judgement as the whole ladder's
@@ -1132,7 +1122,6 @@ def test_a_step_rejected_on_forward_differences_is_taken_again_on_central(small_
     on central ones from the start ends, one iteration later (before: no step accepted).
     From a feasible point only (μmax off): away from feasibility a rejection is mostly the
     constraints' curvature, which the second-order correction treats."""
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, small_fit.w.copy()
     _strict(prob, monkeypatch)
@@ -1140,7 +1129,7 @@ def test_a_step_rejected_on_forward_differences_is_taken_again_on_central(small_
     _on_central(prob)
     w = prob.solve_gn(w, fixed={0: w[0]})["w"]  # feasible, μmax held off
     assert np.abs(prob.evaluate(w)[1]).max() < prob.feas_tol
-    prob.jacobian_scheme("forward", nlp.SOLVE_REL_STEP, share=False)
+    prob.jacobian_scheme("forward", arcs_mod.SOLVE_REL_STEP, share=False)
     monkeypatch.setattr(prob._cb_jac, "arcs", _ForwardFlipped(prob._cb_jac.arcs))
     res = prob.solve_gn(w)
     assert res["central"] and not prob._cb_jac_forward()
@@ -1164,7 +1153,6 @@ def test_a_failed_solve_is_solved_on_central_differences_only_near_continuity(sm
     continuity; further out it is the constraints' curvature that stops the line search
     (measured: a logistic-law refit from a start 0.23 µm off climbed the damping ladder
     to its top on forward differences and again on central ones, 26 s for one point)."""
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, small_fit.w.copy()
     schemes = []
@@ -1174,15 +1162,15 @@ def test_a_failed_solve_is_solved_on_central_differences_only_near_continuity(sm
         return dict(w=w0, f=1.0, status="Line_Search_Failed", success=False, iterations=3, wall_s=0.0)
 
     monkeypatch.setattr(prob, "solve_gn", failed)
-    for violation, expected in ((10 * nlp.CENTRAL_RESOLVE_FEAS, ["forward"]),
-                                (0.1 * nlp.CENTRAL_RESOLVE_FEAS, ["forward", "central"])):
+    for violation, expected in ((10 * gn.CENTRAL_RESOLVE_FEAS, ["forward"]),
+                                (0.1 * gn.CENTRAL_RESOLVE_FEAS, ["forward", "central"])):
         schemes.clear()
         monkeypatch.setattr(prob, "_violation", lambda _w, v=violation: v)
         res = prob.solve(w)
         assert schemes == expected and res["status"] == "Line_Search_Failed"
         assert res["iterations"] == 3 * len(expected) and prob._cb_jac_forward()
     monkeypatch.undo()
-    assert prob._violation(w) < nlp.CENTRAL_RESOLVE_FEAS  # (the fit's own end is near continuity)
+    assert prob._violation(w) < gn.CENTRAL_RESOLVE_FEAS  # (the fit's own end is near continuity)
 
 
 def test_a_step_rejected_within_the_stall_tolerance_ends_the_solve(small_fit, monkeypatch):
@@ -1191,7 +1179,6 @@ def test_a_step_rejected_within_the_stall_tolerance_ends_the_solve(small_fit, mo
     judge the point within tolerance once the ladder had climbed (measured: four rungs,
     ~20 s, for 1.5e-4 of ½χ² on the 10-run speed benchmark). The solve now ends at its
     first rejection, with that judgement; a promise above the tolerance still climbs."""
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, small_fit.w.copy()
     _on_central(prob)
@@ -1199,12 +1186,12 @@ def test_a_step_rejected_within_the_stall_tolerance_ends_the_solve(small_fit, mo
     r, g, Jr, Jg = prob.evaluate(w, jac=True)
     d = np.zeros(prob.n_w)
     free = np.nonzero(prob.bounds()[0] < prob.bounds()[1])[0]
-    d[free] = nlp._kkt_solve((Jr.T @ Jr).tocsc(), Jg, Jr.T @ r, g, free)[: len(free)]
+    d[free] = conv.kkt_solve((Jr.T @ Jr).tocsc(), Jg, Jr.T @ r, g, free)[: len(free)]
     moves = 0.5 * float((Jr @ d) @ (Jr @ d))
     assert prob.stat_tol < moves < prob.stall_tol and np.abs(g).max() < prob.stall_feas, moves
     _worse_away_from(w, prob, monkeypatch)
     res = prob.solve_gn(w)
-    assert (res["status"], res["success"], res["iterations"]) == (nlp.STALLED, True, 1)
+    assert (res["status"], res["success"], res["iterations"]) == (conv.STALLED, True, 1)
     assert np.array_equal(res["w"], w)
     monkeypatch.setattr(prob, "stall_tol", 0.5 * moves)  # (the step promises more)
     res = prob.solve_gn(w)
@@ -1218,10 +1205,9 @@ def test_no_damping_reaches_a_step_whose_parameters_are_held(small_fit):
     1e12 is the limit the reach is measured against, and has none left."""
     import scipy.sparse as sp
 
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, small_fit.w.copy()
-    prob.jacobian_scheme(prob.opts.arc_jacobian, nlp.SOLVE_REL_STEP, share=False)
+    prob.jacobian_scheme(prob.opts.arc_jacobian, arcs_mod.SOLVE_REL_STEP, share=False)
     w[0] += 1e-3
     r, g, Jr, Jg = prob.evaluate(w, jac=True)
     H, grad = (Jr.T @ Jr).tocsc(), Jr.T @ r
@@ -1230,7 +1216,7 @@ def test_no_damping_reaches_a_step_whose_parameters_are_held(small_fit):
     def reach_of(free, lm=0.0):
         damping = lm * np.maximum(H.diagonal()[: prob.n_theta], 1e-12)
         Hd = H + sp.diags(np.r_[damping, np.zeros(prob.n_w - prob.n_theta)])
-        sol = nlp._kkt_solve(Hd.tocsc(), Jg, grad, g, free)
+        sol = conv.kkt_solve(Hd.tocsc(), Jg, grad, g, free)
         d = np.zeros(prob.n_w)
         d[free] = sol[: len(free)]
         dphi = grad @ d - 1.1 * np.abs(sol[len(free):]).max() * np.abs(g).sum()
@@ -1241,7 +1227,7 @@ def test_no_damping_reaches_a_step_whose_parameters_are_held(small_fit):
     assert reach_of(held[lbx[held] < ubx[held]]) == (0.0, 0.0)
     free = free[lbx[free] < ubx[free]]
     model, step = reach_of(free)
-    assert 0.1 < model < 1.0 and step > nlp.LADDER_STEP, (model, step)
+    assert 0.1 < model < 1.0 and step > gn.LADDER_STEP, (model, step)
     assert max(reach_of(free, lm=1e12)) < 1e-6
 
 
@@ -1249,7 +1235,6 @@ def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, mon
     """At the solution, every trial point made worse: the damping rises until the damped
     step promises less than stat_tol. That is not convergence (the damping grew because
     steps failed); the undamped step decides, by the stall rule."""
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, small_fit.w.copy()
     _on_central(prob)
@@ -1261,11 +1246,11 @@ def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, mon
     monkeypatch.setattr(prob, "flat_iters", 0)  # (ended by FLAT_ITERS first at feas_tol 1)
     _worse_away_from(w, prob, monkeypatch)
     said = []
-    monkeypatch.setattr(prob, "_stalled", lambda *a, **kw: said.append(kw) or (nlp.STALLED, True))
+    monkeypatch.setattr(prob, "_stalled", lambda *a, **kw: said.append(kw) or (conv.STALLED, True))
     res = prob.solve_gn(w)
     # (no step is accepted, so the only call is the damped-convergence one; before,
     # this ended "Solve_Succeeded")
-    assert res["status"] == nlp.STALLED and said == [dict(damped=False)]
+    assert res["status"] == conv.STALLED and said == [dict(damped=False)]
     assert res["iterations"] > 1 and np.array_equal(res["w"], w)
 
 
@@ -1274,14 +1259,13 @@ def test_a_line_search_that_fails_at_every_damping_is_judged_as_a_stall(small_fi
     promises, every line search fails up to the largest damping; the undamped step decides
     by the stall rule (measured: a diagnosis refit whose estimate and held-out gap were
     right ended "Line_Search_Failed" and was not named)."""
-    import identify.nlp as nlp
 
     prob, w, _ = _off_solution(small_fit)
     _on_central(prob)
     monkeypatch.setattr(prob, "feas_tol", 1.0)  # (the 1 nm violation alone would not stop it)
     monkeypatch.setattr(prob, "flat_iters", 0)  # (ended by FLAT_ITERS first at feas_tol 1)
     _worse_away_from(w, prob, monkeypatch)
-    for verdict, status in (((nlp.STALLED, True), nlp.STALLED), (("Stalled", False), "Line_Search_Failed")):
+    for verdict, status in (((conv.STALLED, True), conv.STALLED), (("Stalled", False), "Line_Search_Failed")):
         said = []
         monkeypatch.setattr(prob, "_stalled", lambda *a, _v=verdict, _s=said, **kw: _s.append(kw) or _v)
         res = prob.solve_gn(w)
@@ -1295,7 +1279,6 @@ def test_a_stall_reached_under_damping_is_judged_on_the_undamped_step(small_fit,
     (< stat_tol). That stall is judged on the undamped step at the last step's start, as
     a damped convergence and a failed line search are (measured: a load-offset refit whose
     Δnll was known to 0.6 was called "Stalled" on its damped step's short promise)."""
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, small_fit.w.copy()
     _on_central(prob)
@@ -1324,12 +1307,12 @@ def test_a_stall_reached_under_damping_is_judged_on_the_undamped_step(small_fit,
         at = seen["at"]
         same = all(np.array_equal(x, y) for x, y in ((r, at[0]), (g, at[1]))) and Jr is at[2]
         said.append(("undamped", failed, same))
-        return nlp.STALLED, True
+        return conv.STALLED, True
 
     monkeypatch.setattr(prob, "_stalled_undamped", undamped)
     res = prob.solve_gn(w)
     assert said == [("undamped", "Stalled", True)], said
-    assert res["status"] == nlp.STALLED and res["success"] and res["iterations"] == 4 + nlp.STALL_ITERS
+    assert res["status"] == conv.STALLED and res["success"] and res["iterations"] == 4 + conv.STALL_ITERS
 
 
 def test_a_second_order_correction_lands_a_full_step_on_curved_constraints():
@@ -1344,7 +1327,7 @@ def test_a_second_order_correction_lands_a_full_step_on_curved_constraints():
 
     import scipy.sparse as sp
 
-    from identify.nlp import Problem, _kkt_solve
+    from identify.fitting.problem import Problem
 
     def evaluate(w, jac=False):
         return np.array([w[0] - 1.0]), np.array([w[1] - 2.0 * w[0] ** 2])
@@ -1354,7 +1337,7 @@ def test_a_second_order_correction_lands_a_full_step_on_curved_constraints():
     Jr = sp.csc_matrix(np.array([[1.0, 0.0]]))
     Jg = sp.csc_matrix(np.array([[-4.0 * w[0], 1.0]]))
     H, grad, free, nu = (Jr.T @ Jr).tocsc(), Jr.T @ r, np.arange(2), 1.0
-    d = _kkt_solve(H, Jg, grad, g, free)[:2]
+    d = conv.kkt_solve(H, Jg, grad, g, free)[:2]
     np.testing.assert_allclose(w + d, [1.0, 1.5], atol=1e-12)
     phi0 = 0.5 * r @ r + nu * np.abs(g).sum()
     target = phi0 + 1e-4 * (grad @ d - nu * np.abs(g).sum())
@@ -1379,7 +1362,6 @@ def test_a_second_order_correction_lands_a_full_step_on_curved_constraints():
 
 @pytest.mark.parametrize("status", ["Stalled", "Line_Search_Failed"])
 def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, monkeypatch, status):
-    import identify.nlp as nlp
 
     prob, w = small_fit.problem, small_fit.w
     schemes = []
@@ -1393,13 +1375,13 @@ def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, mon
 
     monkeypatch.setattr(prob, "solve_gn", fake_gn)
     res = prob.solve(w)
-    assert schemes == [("forward", nlp.SOLVE_REL_STEP), ("central", nlp.SOLVE_REL_STEP)]
+    assert schemes == [("forward", arcs_mod.SOLVE_REL_STEP), ("central", arcs_mod.SOLVE_REL_STEP)]
     assert res["status"] == "Solve_Succeeded" and res["iterations"] == 10 and res["wall_s"] == 1.5
-    assert (prob._cb_jac.scheme, prob._cb_jac.rel_step) == ("forward", nlp.SOLVE_REL_STEP)
+    assert (prob._cb_jac.scheme, prob._cb_jac.rel_step) == ("forward", arcs_mod.SOLVE_REL_STEP)
 
 
 def test_what_makes_a_solution_suspect(small_fit):
-    from identify.fit import _suspect
+    from identify.fitting.driver import _suspect
 
     prob, w = small_fit.problem, small_fit.w
     f = 0.5 * float(prob.residuals(w) @ prob.residuals(w))
@@ -1417,8 +1399,8 @@ def test_start_takes_the_reduced_analysis_only_where_it_determines_it(monkeypatc
     start the full one."""
     from types import SimpleNamespace
 
-    import identify.reduced as reduced
-    from identify.fit import _start_values
+    import identify.traces.reduced as reduced
+    from identify.fitting.driver import _start_values
 
     preset = parameter_set("FOTAS")
     fitted = SimpleNamespace(converged=True, parameters=dict(mu_max=0.83, mu_min=0.004, tau=0.044),
@@ -1469,7 +1451,7 @@ def test_interval_triggers_are_bounds_not_residuals(small_traces):
     values = dict(model.defaults(parameter_set(coating, {"v_stick": V_STICK})))
     probs = {}
     for trigger in ("uniform", "interval"):
-        p = Problem([_run_data(ev) for ev in runs], model, values,
+        p = Problem([make_run_data(ev) for ev in runs], model, values,
                     FitOptions(fixed={"v_stick": V_STICK}, trigger=trigger)).build()
         probs[trigger] = (p, p.initial_w({"mu_max": 0.75, "mu_min": 0.5, "tau": 0.08, "A": 0.012}))
     (u, wu), (i, wi) = probs["uniform"], probs["interval"]
@@ -1499,7 +1481,7 @@ def test_covariance_from_a_given_evaluation_is_the_same(small_traces):
     runs, _, coating = prepare_runs(small_traces)
     model = Model(get_law("exponential"))
     values = dict(model.defaults(parameter_set(coating, {"v_stick": V_STICK})))
-    p = Problem([_run_data(ev) for ev in runs], model, values, FitOptions(fixed={"v_stick": V_STICK})).build()
+    p = Problem([make_run_data(ev) for ev in runs], model, values, FitOptions(fixed={"v_stick": V_STICK})).build()
     w = p.initial_w({"mu_max": 0.75, "mu_min": 0.5, "tau": 0.08, "A": 0.012})
     ev = p.central_differences().evaluate(w, jac=True)
     other = p.initial_w({"mu_max": 0.7, "mu_min": 0.45, "tau": 0.05, "A": 0.01})
@@ -1764,7 +1746,7 @@ def test_a_converged_fit_is_at_the_solution_its_linearisation_predicts(small_fit
 def test_multistart_counts_a_start_within_the_solvers_resolution_as_finding_the_best():
     """Two starts at one solution differ by what the solver cannot resolve (0.02 of ½χ² on
     an 8-run fit): both found it. Another basin 1 unit higher did not; nor did a failed start."""
-    from identify.report import best_found
+    from identify.fitting.result import best_found
 
     assert best_found([5363.46, 5363.48, 5364.5, float("inf")]) == 2
     assert best_found([12.0]) == 1 and best_found([float("nan")]) == 0
@@ -1777,8 +1759,8 @@ def test_a_mode_sequence_that_ends_worse_is_not_kept(small_traces, monkeypatch):
     says what was not kept."""
     import sys
 
-    F = sys.modules["identify.fit"]  # (the package's attribute `fit` is the function)
-    real = F._misfit_triggers
+    F = sys.modules["identify.fitting.driver"]  # (the package's attribute `fit` is the function)
+    real = F.misfit_triggers
 
     def worse(prob, best, *a, **k):
         prob, best, counts = real(prob, best, *a, **k)
@@ -1787,7 +1769,7 @@ def test_a_mode_sequence_that_ends_worse_is_not_kept(small_traces, monkeypatch):
         return prob, dict(best, w=w, success=False, status="Line_Search_Failed", loose=False), dict(
             counts, moved=counts["moved"] + 7)
 
-    monkeypatch.setattr(F, "_misfit_triggers", worse)
+    monkeypatch.setattr(F, "misfit_triggers", worse)
     res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}))
     x = res.solver["sequence_not_kept"]
     assert x["excess_after"] > x["excess_before"] + F.SEQUENCE_SLACK and x["triggers_moved"] >= 7
@@ -1800,7 +1782,7 @@ def test_a_mode_sequence_that_ends_worse_is_not_kept(small_traces, monkeypatch):
 def test_worse_sequence_compares_excess_chi2():
     """Excess χ² (χ² − observations) decides, with SEQUENCE_SLACK to spare; a solution
     that cannot be evaluated after is worse, one that cannot before decides nothing."""
-    from identify.fit import SEQUENCE_SLACK, _worse_sequence
+    from identify.fitting.driver import SEQUENCE_SLACK, worse_sequence
 
     class P:
         def __init__(self, n_obs):
@@ -1818,28 +1800,28 @@ def test_worse_sequence_compares_excess_chi2():
 
     a, b = P(100), P(98)  # the decided sequence leaves two frames out as moving
     w0 = {"w": np.full(100, 1.0)}  # χ² 100: excess 0
-    assert _worse_sequence(a, w0, b, {"w": np.full(98, 1.0)}) is None  # excess 0 both
-    assert _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), np.sqrt(1 + SEQUENCE_SLACK)]}) is None
-    x = _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), 2.0]})  # excess 3 > 2
+    assert worse_sequence(a, w0, b, {"w": np.full(98, 1.0)}) is None  # excess 0 both
+    assert worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), np.sqrt(1 + SEQUENCE_SLACK)]}) is None
+    x = worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), 2.0]})  # excess 3 > 2
     assert x == {"excess_before": 0.0, "excess_after": 3.0, "continuity_before_um": 0.0, "continuity_after_um": 0.0}
-    assert _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), np.nan]}) is not None
-    assert _worse_sequence(a, {"w": np.full(100, np.inf)}, b, {"w": np.full(98, 5.0)}) is None
+    assert worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), np.nan]}) is not None
+    assert worse_sequence(a, {"w": np.full(100, np.inf)}, b, {"w": np.full(98, 5.0)}) is None
     # a start off continuity (2 nm) is no solution to go back to, unless the end is further off
     off = {"w": np.r_[np.full(100, 1.0), 2e-3]}
-    assert _worse_sequence(a, off, b, {"w": np.r_[np.full(97, 1.0), 2.0, 0.0]}) is None
-    assert _worse_sequence(a, off, b, {"w": np.r_[np.full(97, 1.0), 2.0, 0.15]}) is not None
+    assert worse_sequence(a, off, b, {"w": np.r_[np.full(97, 1.0), 2.0, 0.0]}) is None
+    assert worse_sequence(a, off, b, {"w": np.r_[np.full(97, 1.0), 2.0, 0.15]}) is not None
     # ... but an end that cannot be evaluated is never kept over it
-    assert _worse_sequence(a, off, b, {"w": np.r_[np.full(97, 1.0), np.nan, 0.0]}) is not None
-    assert _worse_sequence(a, off, b, {"w": np.r_[np.full(98, 1.0), np.nan]}) is not None
+    assert worse_sequence(a, off, b, {"w": np.r_[np.full(97, 1.0), np.nan, 0.0]}) is not None
+    assert worse_sequence(a, off, b, {"w": np.r_[np.full(98, 1.0), np.nan]}) is not None
     # the diagnosis's rule (slack 0): any rise in excess χ² keeps the sequence it had
-    assert _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), 1.1]}, slack=0.0) is not None
-    assert _worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), 0.9]}, slack=0.0) is None
+    assert worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), 1.1]}, slack=0.0) is not None
+    assert worse_sequence(a, w0, b, {"w": np.r_[np.full(97, 1.0), 0.9]}, slack=0.0) is None
 
 
 def test_an_unconverged_solve_near_its_solution_says_how_near():
     """Within half a standard error (and a nanometre of continuity) the flag gives the
     distance instead of distrust; beyond either, distrust with the numbers."""
-    from identify.report import _solution_gap, _unconverged_flag
+    from identify.fitting.result import _solution_gap, _unconverged_flag
 
     class Stub:  # a problem whose Gauss–Newton model says what the test sets
         def __init__(self, h, c):
@@ -1885,7 +1867,7 @@ def test_the_covariance_does_not_give_a_number_where_the_information_cannot_fix_
     bread singular only up to rounding, which the factorisation gets through, is the same."""
     import scipy.sparse as sp
 
-    from identify.nlp import SINGULAR_AMPLIFICATION, _information_solve
+    from identify.fitting.covariance import SINGULAR_AMPLIFICATION, _information_solve
 
     J = np.array([[1.0, 2.0, 0.0], [2.0, 4.0, 0.0], [0.0, 0.0, 3.0]])  # columns 0, 1 only as x0 + 2 x1
     H = sp.csc_matrix(J.T @ J)
@@ -1937,8 +1919,8 @@ def test_a_run_that_steps_between_its_slips_is_not_fitted_for_them_under_the_sti
     stick-slip neighbours gave reduced χ² 9.3, against 1.07 without it). Left out for its
     regime, with the reason; without the option (v_stick = 0, creep tails) it stays
     event-based."""
-    from identify.rundata import _run_data, steps_between_triggers
-    from identify.withheld import withheld_dataset
+    from identify.fitting.rundata import make_run_data, steps_between_triggers
+    from identify.simulation.withheld import withheld_dataset
 
     steps, neighbour = withheld_dataset("rejuvenation", 1e-6, conditions=[(2.13, 10.0, 100.0, 15),
                                                                          (2.13, 20.0, 100.0, 15)], base={"A": 0.015})
@@ -1946,8 +1928,8 @@ def test_a_run_that_steps_between_its_slips_is_not_fitted_for_them_under_the_sti
 
     ev = extract_events(steps)
     assert ev.regime == "unresolved" and ev.creep_ratio > 0.25
-    assert _run_data(ev).kind == "events" and not steps_between_triggers(ev, 0.0)
-    assert _run_data(ev, v_stick=V_STICK).kind == "creep" and steps_between_triggers(ev, V_STICK)
+    assert make_run_data(ev).kind == "events" and not steps_between_triggers(ev, 0.0)
+    assert make_run_data(ev, v_stick=V_STICK).kind == "creep" and steps_between_triggers(ev, V_STICK)
     assert not steps_between_triggers(extract_events(neighbour), V_STICK)
     res = fit([steps, neighbour], options=FitOptions(fixed={"v_stick": V_STICK}))
     assert [r.name for r in res.problem.runs] == [neighbour.name]
@@ -1963,8 +1945,8 @@ def test_start_takes_the_saturated_mu_max_when_tau_is_undetermined():
     analysis cannot fix τ, and the start used to take the preset's μmax 0.796 for that
     alone. The saturated static friction pins μmax: the start now takes it from the data
     (measured 0.765 here), and says where it came from."""
-    from identify.fit import _start_values
-    from identify.laws import get_law
+    from identify.fitting.driver import _start_values
+    from identify.model.laws import get_law
 
     truth = dict(mu_max=0.74, mu_min=0.45, tau=0.055, A=0.012)
     conds = [(2.13, 5, 10), (2.13, 8, 10), (2.13, 20, 10), (2.13, 12, 100), (2.13, 25, 100), (2.13, 30, 100),
@@ -1979,7 +1961,7 @@ def test_start_takes_the_saturated_mu_max_when_tau_is_undetermined():
             traces.append(run.sample(noise_nm=90, seed=i, name=f"k{k}_n{nb}_f{fp}"))
     evs, excluded, coating = prepare_runs(traces)
     assert not excluded
-    runs = [_run_data(ev) for ev in evs]
+    runs = [make_run_data(ev) for ev in evs]
     start, origin = _start_values(runs, get_law("exponential"), parameter_set("FOTAS"),
                                   FitOptions(fixed={"v_stick": V_STICK}))
     assert abs(start["mu_max"] - truth["mu_max"]) < 0.03
@@ -2004,12 +1986,12 @@ def test_spread_starts_cover_each_parameter_range_once_per_stratum(small_traces)
     """A Latin hypercube: with n starts, each free parameter's range (a decade either side
     for log-scaled ones, ±40 % for the others) holds one start in each of its n strata;
     all inside the bounds; seeded."""
-    from identify.fit import _at_bound, _spread_starts
+    from identify.fitting.driver import _at_bound, _spread_starts
 
     runs, _, coating = prepare_runs(small_traces)
     model = Model(get_law("exponential"))
     values = dict(model.defaults(parameter_set(coating, {"v_stick": V_STICK})))
-    prob = Problem([_run_data(ev) for ev in runs], model, values, FitOptions(fixed={"v_stick": V_STICK})).build()
+    prob = Problem([make_run_data(ev) for ev in runs], model, values, FitOptions(fixed={"v_stick": V_STICK})).build()
     w0 = prob.initial_w({n: values[n] for n in prob.theta.names})
     n = 5
     starts = _spread_starts(prob, w0, n, np.random.default_rng(3))

@@ -1,11 +1,11 @@
-"""Sparse systems with a few dense rows and columns (identify.kkt)."""
+"""Sparse systems with a few dense rows and columns (identify.fitting.kkt)."""
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from identify import kkt
+from identify.fitting import kkt
 
 
 def _bordered_kkt(n=400, m=300, n_dense=4, seed=0):

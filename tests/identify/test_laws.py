@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from identify.laws import LAWS, get_law
-from identify.params import PARAMETER_SETS
+from identify.model.laws import LAWS, get_law
+from identify.model.params import PARAMETER_SETS
 
 P = dict(PARAMETER_SETS["FOTAS"])
 
@@ -94,8 +94,8 @@ def test_a_logistic_slip_can_start_below_mu_min():
     the law as written diverged there and the arc could not be integrated at any tolerance."""
     import warnings
 
-    from identify.arcs import arc_functions
-    from identify.model import Model
+    from identify.fitting.arcs import arc_functions
+    from identify.model.symbolic import Model
 
     vals = dict(mu_max=0.8106, mu_min=0.6761, tau=7.9e-4, A=7.87e-6, vc=1e-6, dc=20e-9, v_stick=1e-5)
     af = arc_functions(Model("logistic"))
@@ -119,7 +119,7 @@ def test_a_coefficient_beyond_reach_is_an_infinite_age_without_a_warning():
 
     import numpy as np
 
-    from identify.laws import get_law
+    from identify.model.laws import get_law
 
     law = get_law("logarithmic")
     with warnings.catch_warnings():

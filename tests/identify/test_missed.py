@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from identify import FitOptions, SimulationOptions, fit, simulate
-from identify.events import extract_events
-from identify.params import parameter_set
+from identify.model.params import parameter_set
+from identify.traces.events import extract_events
 
 V_STICK = 1e-5
 
@@ -101,10 +101,10 @@ class _Stub:
 ])
 def test_after_inserted_slips_the_warm_point_is_solved_only_when_the_fresh_solve_looks_wrong(
         monkeypatch, ends, solved, kept):
-    import identify.start
-    from identify.fit import _after_insertion
+    import identify.fitting.start
+    from identify.fitting.driver import _after_insertion
 
-    monkeypatch.setattr(identify.start, "staged_start", lambda prob, values, seed=0: (values, {}))
+    monkeypatch.setattr(identify.fitting.start, "staged_start", lambda prob, values, seed=0: (values, {}))
     prob, restarts = _Stub(ends), []
     sol = _after_insertion(prob, np.array([2.0]), {"mu_max": 0.8}, 3, FitOptions(), restarts)
     assert prob.solved == solved

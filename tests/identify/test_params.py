@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from identify.params import (
+from identify.model.params import (
     PARAMETER_SETS,
     ParameterError,
     normal_load_from_voltage,

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from identify import simulate
-from identify.analyze import analyze
-from identify.events import extract_events
-from identify.laws import get_law
-from identify.reduced import ReducedRun, fit_law_curve, reduced_fit, reduced_run
+from identify.model.laws import get_law
+from identify.traces.analyze import analyze
+from identify.traces.events import extract_events
+from identify.traces.reduced import ReducedRun, fit_law_curve, reduced_fit, reduced_run
 
 K = 2.13
 STEP = 46e-9
@@ -99,7 +99,7 @@ def test_noise_correction_of_sqrt12(run5):
 
 def test_reduced_run_without_events_and_json(run5):
     tr = run5.sample(noise_nm=90, seed=2)
-    r = reduced_run(tr)
+    r = reduced_run(tr, extract_events(tr))
     r2 = extract_events(tr).reduced
     assert r.to_json() == r2.to_json()
     d = json.loads(json.dumps(r.to_json()))
@@ -262,7 +262,7 @@ def test_analyze_a_data_set(tmp_path, sweep_sims, monkeypatch):
     import importlib
 
     # the module, not the function of the same name that the package exports
-    an = importlib.import_module("identify.analyze")
+    an = importlib.import_module("identify.traces.analyze")
 
     real = an.extract_events
 

@@ -9,9 +9,9 @@ import pytest
 
 import identify
 from identify import Model, get_law, parameter_set
-from identify.diagnosis import DiagnosisOptions, diagnose
-from identify.regime_check import MISMATCH_Z, RegimeRun, regime_check
-from identify.where import Misfit, with_regime
+from identify.diagnosis.rounds import DiagnosisOptions, diagnose
+from identify.diagnosis.where import Misfit, with_regime
+from identify.fitting.regime_check import MISMATCH_Z, RegimeRun, regime_check
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "FOTAS"
 OPTS = identify.FitOptions(fixed={"v_stick": 1e-5})
@@ -28,9 +28,9 @@ def _flat(name="flat", k=2.13, nb=5e-6, fp=100.0, slip=0.0, n_steps=300):
 
 
 def _left_out(trace):
-    from identify.rundata import _run_data
+    from identify.fitting.rundata import make_run_data
 
-    rd = _run_data(identify.extract_events(trace))
+    rd = make_run_data(identify.extract_events(trace))
     assert rd.kind == "creep"  # no resolvable slips: what the fit leaves out
     return RegimeRun.of(rd)
 
@@ -98,9 +98,9 @@ def test_a_camera_slower_than_the_puller_still_spans_the_run():
     tr = (identify.simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=20, step_frequency_Hz=100,
                             travel_um=10, params={"mu_max": 0.485}, stick_speed_m_per_s=1e-5)
           .sample(frame_rate_Hz=10, noise_nm=90, seed=0, name="slow"))
-    from identify.rundata import _run_data
+    from identify.fitting.rundata import make_run_data
 
-    rr = RegimeRun.of(_run_data(identify.extract_events(tr)))
+    rr = RegimeRun.of(make_run_data(identify.extract_events(tr)))
     assert rr.frame_rate == pytest.approx(10) and rr.n_steps == pytest.approx(10e-6 / 46e-9, abs=10)
 
 
@@ -144,7 +144,7 @@ def test_the_model_is_read_at_the_datas_frame_times():
 def test_largest_slip_merges_pieces_within_two_steps():
     from types import SimpleNamespace
 
-    from identify.regime_check import largest_slip
+    from identify.fitting.regime_check import largest_slip
 
     ev = SimpleNamespace(slips=dict(slip_length_m=np.array([0.4e-6, 3.3e-6, 0.43e-6, 0.44e-6, 1e-6]),
                                     trigger_step=np.array([10, 249, 250, 251, 300])))
@@ -242,7 +242,7 @@ def test_a_run_left_out_that_the_model_agrees_with_changes_nothing(small_fit):
 
 
 def test_candidate_notes_say_what_each_does_to_the_left_out_runs():
-    from identify.diagnosis import _regime_left_note, _regime_notes
+    from identify.diagnosis.rounds import _regime_left_note, _regime_notes
 
     base = dict(regime=dict(mismatched=["a", "b"]))
     fixes = dict(effect="rejuvenation", ok=True, note="significant", regime=dict(mismatched=[]))
@@ -275,7 +275,7 @@ def test_the_regime_screen_says_which_candidate_makes_runs_like_the_datas():
     is skipped, and one that cannot be simulated is recorded, not fatal. (On this one run
     rejuvenation at dc = 1 µm reproduces it too, z 1.85; on the withheld set's eight runs
     it parts from two: uniqueness is that test's.)"""
-    from identify.regime_screen import regime_screen
+    from identify.diagnosis.regime_screen import regime_screen
 
     tr = (identify.simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=10, step_frequency_Hz=100,
                             travel_um=8, law="logistic", params=TRUTH, stick_speed_m_per_s=1e-5)
@@ -309,7 +309,7 @@ def test_the_regime_screen_runs_in_the_diagnosis_workers(monkeypatch):
     import concurrent.futures as cf
     import multiprocessing as mp
 
-    from identify.regime_screen import regime_screen
+    from identify.diagnosis.regime_screen import regime_screen
 
     tr = (identify.simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=10, step_frequency_Hz=100,
                             travel_um=8, law="logistic", params=TRUTH, stick_speed_m_per_s=1e-5)
@@ -317,7 +317,7 @@ def test_the_regime_screen_runs_in_the_diagnosis_workers(monkeypatch):
     rr = _left_out(tr)
     ids = ("drift", "aging_logistic")
     free = ("mu_max", "mu_min", "tau", "A")
-    import identify.regime_screen as rs
+    import identify.diagnosis.regime_screen as rs
 
     ran, said_here = [], []
     one = rs.screen_one
@@ -375,7 +375,7 @@ def test_a_model_reproduces_runs_only_with_their_largest_slip():
     must also make its first slip. Measured on the run that slips once (1.70 µm): the
     exponential law with μmax = 0.5 parts from it nowhere but slips 0.29 µm (7.4 units);
     with τ = 67.4 s it slips 1.75 µm (0.4), as the logistic law does."""
-    from identify.regime_check import SLIP_P, slip_floor
+    from identify.fitting.regime_check import SLIP_P, slip_floor
 
     rr = _once()
     little_aging = regime_check(MODEL, {**TRUTH, "mu_max": 0.5}, [rr])
@@ -393,7 +393,7 @@ def test_a_model_reproduces_runs_only_with_their_largest_slip():
 
 
 def test_own_moves_step_each_free_parameter_toward_its_bounds():
-    from identify.regime_screen import own_moves
+    from identify.diagnosis.regime_screen import own_moves
 
     values = {"mu_max": 0.796, "mu_min": 0.484, "tau": 0.0674, "A": 0.0}
     moves = own_moves(("tau", "mu_max", "A", "dc"), values)  # dc has no value here: not moved
@@ -409,7 +409,7 @@ def test_the_current_model_with_a_moved_parameter_confounds_a_candidate():
     """The run that slips once: the logistic law makes it, and so does the exponential law
     with τ ≥ 0.674 s (10×; on the withheld set's eight longer runs, ≥ 67.4 s); faster aging
     does not."""
-    from identify.regime_screen import moved_text, own_screen, smallest_moves
+    from identify.diagnosis.regime_screen import moved_text, own_screen, smallest_moves
 
     recs = own_screen("exponential", ("tau",), TRUTH, [_once()])
     assert len(recs) == 8 and all(r["start"] == {"tau": TRUTH["tau"]} for r in recs)
@@ -465,9 +465,9 @@ def test_a_candidate_held_at_its_magnitude_that_makes_the_left_out_runs_is_said_
     candidate fits the runs fitted as well and makes the left-out ones as the data's,
     where the final model parts from them (stand-in numbers near the rejuvenation set's).
     Said with its joint Δχ², not named from there: the magnitude is the library's (a
-    profile decides, identify.regime_profile)."""
-    from identify.diagnosis import _held_evidence, _held_note
-    from identify.regime_check import RegimeCheck
+    profile decides, identify.diagnosis.regime_profile)."""
+    from identify.diagnosis.rounds import _held_evidence, _held_note
+    from identify.fitting.regime_check import RegimeCheck
 
     check = RegimeCheck(runs=[dict(name=n, mismatch=n in "abc") for n in "abcdef"], chi2=58.2, df=6, p_value=1e-10)
     held = _held_evidence(_held_round(), [], check)

@@ -1,4 +1,4 @@
-"""A candidate's parameter profiled on every run (identify.regime_profile), and the
+"""A candidate's parameter profiled on every run (identify.diagnosis.regime_profile), and the
 diagnosis naming it from there (diagnosis._profile_held), on stand-in profiles whose
 points the tests set: the numbers are the withheld rejuvenation set's (dc = 1 µm)."""
 
@@ -8,8 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import identify.regime_profile as rp
-from identify.regime_check import RegimeCheck
+import identify.diagnosis.regime_profile as rp
+from identify.fitting.regime_check import RegimeCheck
 
 NOISE = {"a": 0.09, "b": 0.09}
 
@@ -112,8 +112,8 @@ def _held(effect="rejuvenation"):
 
 
 def _profile_held(monkeypatch, held, own=(), p=1e-13):
-    import identify.diagnosis as D
-    import identify.regime_profile as rprof
+    import identify.diagnosis.regime_profile as rprof
+    import identify.diagnosis.rounds as D
 
     def fake_profile(task, start, chi2, final, noise, executor=None, say=None, continuity_um=1e-3):
         return dict(effect=task.effect, parameter="dc", value=1e-6, interval=(5.6e-7, 1.8e-6), inside=(1e-6, 1e-6),
@@ -130,7 +130,7 @@ def _profile_held(monkeypatch, held, own=(), p=1e-13):
         return [dict(moved=dict(m), start={"tau": 0.04}, reproduces_regime=True) for m in own]
 
     monkeypatch.setattr(D, "own_screen", fake_own)
-    import identify.regime_check as rc
+    import identify.fitting.regime_check as rc
 
     monkeypatch.setattr(rc.RegimeRun, "of", classmethod(lambda cls, rd: rd))
     confounded = []

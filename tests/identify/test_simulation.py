@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from identify import ParameterError, RunConditions, SimulationOptions, simulate, simulate_run
-from identify.model import Model
-from identify.params import parameter_set
+from identify.model.params import parameter_set
+from identify.model.symbolic import Model
 
 K, MB = 2.13, 3.64e-10
 ENGINES = ["rosenbrock", "idas"]
@@ -181,7 +181,7 @@ def test_bad_options():
 
 def test_simulate_run_keeps_failures_as_warnings(monkeypatch):
     """A failing moving phase ends the run with what was computed, and says so."""
-    import identify.simulation as sim
+    import identify.simulation.hybrid as sim
 
     calls = {"n": 0}
     real = sim._Runner.move

@@ -10,7 +10,7 @@ import pytest
 
 from identify import FitOptions, SimulationOptions, fit, simulate
 from identify.cli import main as cli_main
-from identify.fit import FitError
+from identify.fitting.driver import FitError
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "FOTAS"
 # two bundled runs the model as written creeps in (their data stick-slip), one it does not

@@ -2,7 +2,7 @@
 
 import pytest
 
-from identify.rundata import RunData
+from identify.fitting.rundata import RunData
 
 
 def _run(fp, kind="events"):

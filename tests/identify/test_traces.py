@@ -1,4 +1,4 @@
-"""Tests of identify.traces: every rule of shared/TRACE_FORMAT.md, round trips, folders."""
+"""Tests of identify.traces.io: every rule of shared/TRACE_FORMAT.md, round trips, folders."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from identify.params import SPECS, normal_load_from_voltage
-from identify.traces import FORMAT, Trace, TraceFormatError, TraceSet, load_traces
+from identify.model.params import SPECS, normal_load_from_voltage
+from identify.traces.io import FORMAT, Trace, TraceFormatError, TraceSet, load_traces
 
 GOOD_META = {
     "format": FORMAT,

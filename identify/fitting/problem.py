@@ -1,0 +1,742 @@
+"""The identification NLP: event-based multiple shooting over all runs.
+
+Decision variables
+    θ, the free model parameters (scaled: log for positive ones, else value/scale); per
+    run optionally an elongation offset; per plateau p the block position x_p (µm); per
+    run the phase its slips recur at (fixed at ½ unless ``free_phase``); per slip e the
+    position s_e in its trigger interval that its arc starts from (``arc_start="aged"``).
+Constraints (continuity of the hybrid trajectory)
+    x_{p+1} = x_p + δ_e: slip e's length from its arc (:mod:`identify.fitting.arcs`, the
+    symbolic slip model integrated event-aware over the steps it spans);
+    s_e = where the previous arc's end state, aged in closed form over the rest, puts
+    the capacity in slip e's interval (every slip but a run's first).
+Residuals (σ-normalised: the noise model is stated and the covariance follows from it)
+    * plateau frames: e_j = Δx·n_j − x_p + offset + noise(σ_run), compressed exactly into
+      each plateau's mean (√n·(ē − Δx·n̄ + x − offset)/σ) and the run's pooled
+      within-plateau staircase slope (√S_nn·(Δx − Δx̂)/σ); the objective equals the
+      frame-level χ² up to a constant;
+    * triggers: the contact left by the previous slip's arc, aged in closed form over
+      the rest, must put the capacity inside the trigger step's spring-force interval
+      [F_s(e − Δx), F_s(e)] (the slip happened at this step, not the one before). The
+      position within is uniform: residual √12·(position − φ_run), smooth in the
+      parameters where the trigger rule itself is discrete (:func:`trigger_residual`);
+      a run's first slip, whose contact comes from the unobserved initial state, gets
+      the uniform's √12·(s_e − ½). With ``trigger="interval"`` none of these: the
+      position is bounded to [0, 1] instead (the flat likelihood the uniform stands in
+      for, consistent as the noise vanishes; :class:`identify.fitting.driver.FitOptions`);
+    * creep runs (no resolvable slips): their steady elongation against the steady
+      friction at the pull speed.
+
+Arc starts. With ``arc_start="aged"`` (default) an arc starts from the state the
+previous arc left, aged over the rest, as in the simulator: at the true parameters the
+slip lengths then match a noiseless trace to 0.001-0.007 nm (measured). The start
+position passes through :func:`below_top`, so an arc always starts with the force above
+the capacity and slips (a state aged above the force would not: a cliff in the
+objective). ``arc_start="mid"`` starts every arc mid-interval, valid for any parameters
+but off by 0.06-0.35 nm of slip length at the truth (measured; ~|∂δ/∂ψ0|·Δψ/2): far
+below a plateau's ~15 nm precision at 90 nm noise, ~10 σ on a noiseless trace.
+
+Derivatives: the residuals and constraints are explicit in w and the arc outputs Y; the
+arcs' Jacobians (central differences of the compiled arc) are chain-ruled in a sparse
+block-diagonal product. The Gauss–Newton Hessian is JᵣᵀJᵣ.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from identify.fitting.arcs import SHARE_FEAS, SHARE_TOL, SOLVE_REL_STEP, ArcFunctions, arc_functions, share_groups
+from identify.fitting.covariance import Covariance
+from identify.fitting.exact_arcs import exact_arcs
+from identify.fitting.gauss_newton import GaussNewtonSQP
+from identify.fitting.ipopt import IpoptSolver
+from identify.fitting.triggers import START_SCALE_UM, TriggerRefinement, below_top
+from identify.model.params import SPECS
+from identify.model.symbolic import LENGTH_UNIT, Model
+
+__all__ = ["Problem", "ThetaMap", "MEASUREMENT"]
+
+MEASUREMENT = ("drift_rate", "exposure")
+"""Camera-side parameters the residuals model (the zero offset is ``free_offset``)."""
+
+log = logging.getLogger(__name__)
+
+
+# Exact arc Jacobians (identify.fitting.exact_arcs) are shared among arcs whose inputs agree to
+# this relative distance: an exact Jacobian costs ~10 forward differences
+EXACT_SHARE_TOL = 1e-4
+
+
+@dataclass
+class ThetaMap:
+    """Free parameters <-> scaled decision variables (log or linear)."""
+
+    names: tuple
+    scale: np.ndarray
+    log: np.ndarray
+    lo: np.ndarray  # scaled bounds
+    hi: np.ndarray
+
+    @classmethod
+    def build(cls, names, bounds: Mapping[str, tuple]):
+        scale, logs, lo, hi = [], [], [], []
+        for n in names:
+            s = SPECS[n]
+            b = bounds.get(n, (s.lower, s.upper))
+            scale.append(s.scale)
+            use_log = s.log and b[0] > 0
+            logs.append(use_log)
+            if use_log:
+                lo.append(math.log(b[0] / s.scale))
+                hi.append(math.log(b[1] / s.scale))
+            else:
+                lo.append(b[0] / s.scale)
+                hi.append(b[1] / s.scale)
+        return cls(tuple(names), np.array(scale), np.array(logs, bool), np.array(lo), np.array(hi))
+
+    def to_scaled(self, values: Mapping[str, float]) -> np.ndarray:
+        v = np.array([values[n] for n in self.names], float)
+        return np.where(self.log, np.log(np.maximum(v, 1e-300) / self.scale), v / self.scale)
+
+    def from_scaled(self, th, ops=np):
+        return [self.scale[i] * ops.exp(th[i]) if self.log[i] else self.scale[i] * th[i]
+                for i in range(len(self.names))]
+
+    def jacobian_diag(self, th: np.ndarray) -> np.ndarray:
+        """d value / d scaled, per parameter."""
+        vals = np.array(self.from_scaled(th))
+        return np.where(self.log, vals, self.scale)
+
+
+class _ArcCallback(ca.Callback):
+    """Arc values (5 × E) or Jacobians (2 × n_in·E) for all slips, memoised on the input
+    matrix: the solver asks for them at the same point from several Functions."""
+
+    def __init__(self, name: str, arcs: ArcFunctions, n_events: int, threads: int, jac: bool,
+                 counter: dict, rows=None, scheme: str = "central", jac_callback=None):
+        ca.Callback.__init__(self)
+        self.jac_callback = jac_callback  # (values only) the Jacobian callback: see has_jacobian
+        self.arcs, self.E, self.threads, self.jac = arcs, n_events, threads, jac
+        self.counter, self.rows, self.scheme, self.rel_step, self.share = counter, rows, scheme, None, None
+        self.own = None  # with ``share``: arcs that keep their own differences (bool per arc)
+        self._key: bytes | None = None
+        self._val = None
+        self.construct(name, {})
+
+    def get_n_in(self):
+        return 1
+
+    def get_n_out(self):
+        return 1
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity.dense(self.arcs.n_in, self.E)
+
+    def get_sparsity_out(self, i):
+        return ca.Sparsity.dense(2, self.arcs.n_in * self.E) if self.jac else ca.Sparsity.dense(5, self.E)
+
+    def _exact(self, A: np.ndarray) -> np.ndarray:
+        """Exact arc Jacobians (:mod:`identify.fitting.exact_arcs`), in the layout of
+        :meth:`ArcFunctions.evaluate_jacobian`; an arc the exact route cannot do (its
+        IDAS run or stop refinement failed) takes its central differences instead."""
+        arcs = self.arcs
+        rows = list(range(arcs.n_in)) if self.rows is None else list(self.rows)
+        Y = arcs.evaluate(A, self.threads)  # (remembered: the solver asked for the values first)
+        n = A.shape[1]
+        reps, inverse = np.arange(n), None
+        if self.share is not None and n > 1:
+            reps, inverse = share_groups(A, Y, rows, arcs.typical, self.share, own=self.own)
+        B, YB = A[:, reps], Y[:, reps]
+        _, J, ok = exact_arcs(arcs.model, arcs.input_names).jacobian(B, YB, rows, self.threads)
+        if not ok.all():
+            _, Jfd = arcs.evaluate_jacobian(B[:, ~ok], self.threads, rows=rows, scheme="central",
+                                            rel_step=SOLVE_REL_STEP)
+            J[:, :, ~ok] = Jfd.reshape(2, int((~ok).sum()), arcs.n_in).transpose(0, 2, 1)
+        if inverse is not None:
+            J = J[:, :, inverse]
+        return J.transpose(0, 2, 1).reshape(2, n * arcs.n_in)
+
+    def has_jacobian(self):
+        # the values' Jacobian is the Jacobian callback's, laid out per output entry:
+        # solvers that differentiate the NLP themselves (Ipopt's Lagrangian gradient)
+        # see the same arc derivatives as the explicit Jr, Jg
+        return not self.jac and getattr(self, "jac_callback", None) is not None
+
+    def get_jacobian(self, name, inames, onames, opts):
+        E, n_in = self.E, self.arcs.n_in
+        A = ca.MX.sym("A", n_in, E)
+        out = ca.MX.sym("Y", 5, E)
+        JA = ca.MX(_blockdiag_sparsity(2, n_in, E), ca.vec(self.jac_callback(A)))  # (2E × n_in·E)
+        # rows 2e + r of JA are entries 5e + r of vec(Y)
+        rows = (5 * np.arange(E)[:, None] + np.arange(2)[None, :]).ravel()
+        S = ca.DM(ca.Sparsity.triplet(5 * E, 2 * E, rows.tolist(), list(range(2 * E))), 1.0)
+        return ca.Function(name, [A, out], [ca.mtimes(S, JA)], inames, onames, opts)
+
+    def eval(self, arg):
+        A = np.array(arg[0])
+        key = A.tobytes()
+        if key != self._key:
+            t0 = time.perf_counter()
+            if self.jac and self.scheme == "exact":
+                self._val = self._exact(A)
+                self.counter["jac_s"] += time.perf_counter() - t0
+                self.counter["jac_calls"] += 1
+            elif self.jac:
+                self._val = self.arcs.evaluate_jacobian(A, self.threads, rows=self.rows, scheme=self.scheme,
+                                                        rel_step=self.rel_step, share=self.share,
+                                                        own=self.own)[1]
+                self.counter["jac_s"] += time.perf_counter() - t0
+                self.counter["jac_calls"] += 1
+            else:
+                self._val = self.arcs.evaluate(A, self.threads)
+                self.counter["arc_s"] += time.perf_counter() - t0
+                self.counter["arc_calls"] += 1
+            self._key = key
+        return [self._val]
+
+
+def _same_mask(a, b) -> bool:
+    return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+
+
+def _blockdiag_sparsity(rows: int, cols: int, E: int) -> ca.Sparsity:
+    """E dense rows × cols blocks on the diagonal (column-major nonzeros = vec of the
+    rows × cols·E matrix of the blocks side by side)."""
+    r = np.tile(np.arange(rows), cols * E) + np.repeat(np.arange(E), rows * cols) * rows
+    c = np.repeat(np.arange(cols * E), rows)
+    return ca.Sparsity.triplet(rows * E, cols * E, r.tolist(), c.tolist())
+
+
+def _to_csc(M, n_cols: int) -> sp.csc_matrix:
+    M = ca.DM(M)
+    r, c = M.sparsity().get_triplet()
+    return sp.csc_matrix((np.array(M.nonzeros()), (r, c)), shape=(M.size1(), n_cols))
+
+
+class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement):
+    """The NLP over all usable runs for one set of free parameters.
+
+    Fixing a free parameter (profiles) is done with equal bounds, so the same NLP
+    serves the fit, the multistart and the profile likelihoods.
+    """
+
+    def __init__(self, runs: Sequence, model: Model, values: dict, opts):
+        self.runs = list(runs)
+        self.model, self.law, self.opts = model, model.law, opts
+        self.values = dict(values)
+        self.theta = ThetaMap.build(opts.free, dict(opts.bounds))
+        self.arcs = arc_functions(model, opts.arc_reltol, opts.arc_abstol)
+        self.counter = dict(arc_s=0.0, jac_s=0.0, arc_calls=0, jac_calls=0)
+        self.progress = None  # callable(str): the solver's iterations, for long solves
+        # callable(iteration, ½χ², ½χ² the Gauss–Newton step promises) -> bool: stop the
+        # solve (status GAVE_UP) when it says the rest cannot matter (identify.diagnosis.candidates)
+        self.give_up = None
+        self._layout()
+
+    @property
+    def interval_triggers(self) -> bool:
+        """Triggers as the step's force interval (bounds on the start positions), no
+        trigger residuals (``FitOptions.trigger = "interval"``)."""
+        return self.opts.trigger == "interval"
+
+    @property
+    def phases_free(self) -> bool:
+        """The runs' trigger phases are variables (``free_phase``; never with the interval,
+        where nothing refers to them)."""
+        return bool(self.opts.free_phase) and not self.interval_triggers
+
+    # ---------------------------------------------------------------- layout
+    def _layout(self):
+        ev_runs = [r for r in self.runs if r.kind == "events"]
+        self.creep_runs = [r for r in self.runs if r.kind == "creep"]
+        n_th = len(self.theta.names)
+        n_off = len(self.runs) if self.opts.free_offset else 0
+        P = sum(len(r.plateau_n) for r in ev_runs)
+        E = sum(len(r.trigger_steps) for r in ev_runs)
+        self.n_theta, self.n_off, self.P, self.E = n_th, n_off, P, E
+        self.i_off, self.i_x = n_th, n_th + n_off
+        self.i_phi = self.i_x + P  # per events run: the phase its slips recur at
+        self.i_s = self.i_phi + len(ev_runs)  # per slip: its arc's start position
+        idx = {id(r): i for i, r in enumerate(self.runs)}
+        pl = dict(run=[], n=[], e=[], s=[], x0=[], t=[])
+        ev = dict(run=[], prev=[], step=[], first=[], gap=[])
+        p0 = 0
+        for r in ev_runs:
+            ri = idx[id(r)]
+            Pr, Er = len(r.plateau_n), len(r.trigger_steps)
+            pl["run"] += [ri] * Pr
+            pl["n"].append(r.plateau_n)
+            pl["e"].append(r.plateau_mean_e)
+            pl["s"].append(r.plateau_mean_steps)
+            pl["x0"].append(r.plateau_level0)
+            pl["t"].append(r.plateau_mean_t if r.plateau_mean_t is not None else r.plateau_mean_s / r.fp)
+            for i in range(Er):
+                ev["run"].append(ri)
+                ev["prev"].append(p0 + i)
+                ev["step"].append(int(r.trigger_steps[i]))
+                ev["first"].append(i == 0)
+                ev["gap"].append(int(r.trigger_steps[i + 1] - r.trigger_steps[i]) if i + 1 < Er else 10**9)
+            p0 += Pr
+        cat = lambda v: np.concatenate(v) if v else np.zeros(0)  # noqa: E731
+        self.pl_run = np.array(pl["run"], int)
+        self.pl_n, self.pl_mean_e, self.pl_mean_s, self.pl_x0, self.pl_mean_t = (
+            cat(pl[k]) for k in ("n", "e", "s", "x0", "t"))
+        self.ev_run = np.array(ev["run"], int)
+        self.ev_prev = np.array(ev["prev"], int)
+        self.ev_step = np.array(ev["step"], float)
+        self.ev_first = np.array(ev["first"], bool)
+        self.ev_gap = np.array(ev["gap"], int)
+        self.ev_M = np.minimum(np.ones(E, int), self.ev_gap)
+        rr = self.runs
+        self.ev_k = np.array([rr[i].k for i in self.ev_run])
+        self.ev_Nb = np.array([rr[i].Nb for i in self.ev_run])
+        self.ev_fp = np.array([rr[i].fp for i in self.ev_run])
+        self.pl_sigma = np.array([rr[i].sigma for i in self.pl_run])
+        self.ev_next = np.nonzero(~self.ev_first)[0]  # slips with a predecessor in their run
+        self.n_trig = len(self.ev_next)
+        self.ev_firsts = np.nonzero(self.ev_first)[0]  # each run's first slip
+        self.n_s = E if self.opts.arc_start == "aged" else 0
+        self.n_w = self.i_s + self.n_s
+        ev_run_ids = sorted(set(self.ev_run.tolist()))
+        self.phase_of_run = {ri: k for k, ri in enumerate(ev_run_ids)}
+        self.n_phase = len(ev_run_ids)
+
+    # ---------------------------------------------------------------- physics helpers
+    def params(self, th) -> dict:
+        """Model and measurement parameter values (numbers or MX), the free ones from
+        scaled ``th``."""
+        P = {n: self.values.get(n, SPECS[n].nominal) for n in self.model.parameter_names + MEASUREMENT}
+        ops = ca if isinstance(th, ca.MX) else np
+        P.update(zip(self.theta.names, self.theta.from_scaled(th, ops=ops)))
+        return P
+
+    def interval(self, x_prev_m, e0, P, ops=np):
+        """Spring-force interval of the trigger step, [F_s(e0 − Δx), F_s(e0)] (N)."""
+        step = self.model.step(P)
+        return self.model.spring_force(e0 - step, P, ops=ops), self.model.spring_force(e0, P, ops=ops)
+
+    def start_state(self, s, x_prev_m, e0, P, ops=np):
+        """The contact state whose capacity sits at position s of the trigger interval
+        [F_s(e0 − Δx), F_s(e0)], s kept below the top (:func:`below_top`) so that the
+        arc starts with the spring force above the capacity: it slips."""
+        f_lo, f_hi = self.interval(x_prev_m, e0, P, ops)
+        band = P["A"] * ops.log(1 + P["v_stick"] / P["vc"])
+        cap = f_lo + below_top(s, ops) * (f_hi - f_lo)
+        mu = cap / self.model.normal_load(P) - band - self.model.topography(x_prev_m, P, ops)
+        return self.law.state_from_coefficient(mu, P, ops)
+
+    def start_positions(self, w):
+        """Each arc's start position in its trigger interval (column, MX or array): the
+        shooting variables, or the middle for every slip with ``arc_start="mid"``."""
+        if self.n_s:
+            return w[self.i_s : self.i_s + self.n_s]
+        return ca.DM.ones(self.E, 1) * 0.5 if isinstance(w, ca.MX) else np.full(self.E, 0.5)
+
+    def sync_start_positions(self, w: np.ndarray, passes: int = 2, keep: float = 0.0) -> np.ndarray:
+        """w with every start position set to where the previous arc's end puts it (a
+        consistent point for the shooting constraints; the end state barely depends on
+        the start, the slip rejuvenating the contact, so two passes suffice). A start
+        within ``keep`` of that target stays (its arc, integrated before, is not again)."""
+        w = np.array(w, float)
+        if not self.n_s or not self.n_trig:
+            return w
+        idx = self.i_s + self.ev_next
+        for _ in range(passes):
+            Y = self.arcs.evaluate(np.array(self._arc_inputs(w)), self.opts.threads)
+            t = np.array(self._s_target_fun(w, Y[:2])).ravel()
+            move = np.isfinite(t) & ~(np.abs(t - w[idx]) <= keep)  # an arc that failed keeps its start
+            w[idx] = np.where(move, t, w[idx])
+        return w
+
+    def settle_arcs(self, w: np.ndarray, keep: float = 0.0) -> np.ndarray:
+        """Arcs sized from w's starts, the starts synced to them, and the arcs sized again
+        from the synced starts (a lower start slips further and may need a longer
+        horizon), synced again if that changed a horizon (``keep``: see
+        :meth:`sync_start_positions`)."""
+        self.size_arcs(w)
+        w = self.sync_start_positions(w, keep=keep)
+        M = self.ev_M.copy()
+        self.size_arcs(w)
+        return self.sync_start_positions(w, keep=keep) if not np.array_equal(M, self.ev_M) else w
+
+    def mid_state(self, x_prev_m, e0, P, ops=np):
+        """The contact state whose capacity sits in the middle of the trigger interval."""
+        return self.start_state(0.5, x_prev_m, e0, P, ops)
+
+    def position(self, z, x_prev_m, e0, P, ops=np, z_before=None):
+        """Where state z puts the capacity inside the trigger's admissible interval (0 .. 1).
+
+        The slip happened at this step and not at the one before: cap(tₙ) < F_s(eₙ) and
+        cap(tₙ₋₁) ≥ F_s(eₙ − Δx). The contact ages during the step, by
+        Δ = cap(tₙ) − cap(tₙ₋₁) (``z_before``: the state one step earlier), so cap(tₙ)
+        lies in [F_s(eₙ − Δx) + Δ, F_s(eₙ)] — a large correction where the contact ages
+        fast (rests near τ at high step frequency: measured up to 65 % of the interval).
+        """
+        f_lo, f_hi = self.interval(x_prev_m, e0, P, ops)
+        N = self.model.normal_load(P)
+        cap = self.model.hold_coefficient(z, x_prev_m, P, ops) * N
+        if z_before is not None:
+            gain = (self.model.hold_coefficient(z, x_prev_m, P, ops)
+                    - self.model.hold_coefficient(z_before, x_prev_m, P, ops)) * N
+            width = f_hi - f_lo
+            # keep a sliver of the interval when the aging outruns a whole step
+            f_lo = f_lo + (ops.fmin(gain, 0.9 * width) if ops is ca else np.minimum(gain, 0.9 * width))
+        return (cap - f_lo) / (f_hi - f_lo)
+
+    def _camera_terms(self, P, step):
+        """What the camera adds to each plateau's mean elongation (m).
+
+        Drift: + drift_rate·t̄_p (t̄_p the plateau's mean frame time).
+        Motion blur: a frame at step phase u (fraction of the step interval since the
+        last step) averaging e over an exposure T centred on it reads, with h = T·fp/2
+        (T·fp ≤ 1),  e(t) + Δx·[max(0, u + h − 1) − max(0, h − u)]/(2h): a part of the
+        next step when the window reaches it, minus a part of the current one when the
+        window starts before it. Frames placed symmetrically in the step interval (the
+        usual two frames per step at u = ¼, ¾) cancel in the plateau mean: the blur then
+        shows only in frames taken during a slip, which the plateaus leave out.
+        """
+        out = ca.DM.zeros(self.P, 1)
+        if "drift_rate" in self.theta.names or self.values.get("drift_rate", 0.0) != 0.0:
+            out = out + P["drift_rate"] * ca.DM(self.pl_mean_t)
+        if "exposure" in self.theta.names or self.values.get("exposure", 0.0) != 0.0:
+            rows = []
+            for r in self.runs:
+                if r.kind != "events":
+                    continue
+                u = ca.DM(r.frame_phases).T  # 1 × U
+                h = P["exposure"] * r.fp / 2
+                b = (ca.fmax(0, u + h - 1) - ca.fmax(0, h - u)) / (2 * h + 1e-30)
+                counts = ca.DM(r.phase_counts)  # plateaus × U
+                rows.append(ca.mtimes(counts, b.T) / ca.DM(np.maximum(r.plateau_n, 1)))
+            out = out + step * ca.vertcat(*rows)
+        return out
+
+    # ---------------------------------------------------------------- symbolic NLP
+    def _symbolic(self, w, Y):
+        """Arc inputs A(w), residuals r(w, Y), constraints g(w, Y); Y = (slip, end state)."""
+        th = w[: self.n_theta]
+        P = self.params(th)
+        E = self.E
+        x_um = w[self.i_x : self.i_x + self.P]
+        step = self.model.step(P)
+        res = []
+        if self.P:
+            off = w[self.i_off + self.pl_run] if self.n_off else 0.0
+            model_e = step * ca.DM(self.pl_mean_s) - x_um * LENGTH_UNIT + off * LENGTH_UNIT
+            model_e = model_e + self._camera_terms(P, step)
+            res.append(ca.sqrt(ca.DM(self.pl_n)) * (ca.DM(self.pl_mean_e) - model_e) / ca.DM(self.pl_sigma))
+        drift = P["drift_rate"]
+        for r in self.runs:
+            if r.kind == "events" and r.s_nn > 0:
+                # a drift adds drift/fp per step to the staircase slope
+                res.append(math.sqrt(r.s_nn) * (step + drift / r.fp - r.slope_hat) / r.sigma)
+        A, g = None, ca.MX(0, 1)
+        if E:
+            x_prev = x_um[self.ev_prev] * LENGTH_UNIT
+            e0 = step * ca.DM(self.ev_step) - x_prev
+            Pev = dict(P, k=ca.DM(self.ev_k), Nb=ca.DM(self.ev_Nb))
+            z0 = self.start_state(self.start_positions(w), x_prev, e0, Pev, ops=ca)
+            rows = [(x_prev / LENGTH_UNIT).T, (e0 / LENGTH_UNIT).T, z0.T]
+            for n in self.arcs.param_names:
+                v = P[n]
+                rows.append(ca.repmat(v if isinstance(v, ca.MX) else ca.MX(v), 1, E))
+            rows += [ca.DM(self.ev_k).T, ca.DM(self.ev_Nb).T, ca.DM(self.ev_fp).T, ca.DM(self.ev_M).T]
+            A = ca.vertcat(*rows)
+            # triggers: the previous arc's end state aged over the rest, in this interval
+            nx = self.ev_next
+            pv = nx - 1
+            rest = (self.ev_step[nx] - self.ev_step[pv] - self.ev_M[pv]) / self.ev_fp[pv]
+            z_aged = self.law.rest(Y[1, pv].T, ca.DM(rest), P, ops=ca)
+            z_before = self.law.rest(Y[1, pv].T, ca.DM(np.maximum(rest - 1 / self.ev_fp[nx], 0)), P, ops=ca)
+            Pn = dict(P, k=ca.DM(self.ev_k[nx]), Nb=ca.DM(self.ev_Nb[nx]))
+            s_pos = self.position(z_aged, x_prev[nx], e0[nx], Pn, ops=ca, z_before=z_before)
+            if not self.interval_triggers:
+                phi = w[self.i_phi : self.i_phi + self.n_phase]
+                k_of = np.array([self.phase_of_run[int(ri)] for ri in self.ev_run[nx]], int)
+                # (a 1x1 MX indexed by a list comes back as a row: force a column)
+                res.append(math.sqrt(12) * (s_pos - ca.reshape(phi[k_of.tolist()], -1, 1)))
+                res.append(math.sqrt(12) * (phi - 0.5))
+            g = x_um[self.ev_prev + 1] - x_um[self.ev_prev] - Y[0, :].T
+            if self.n_s:
+                # shooting: each arc starts where the previous arc's end, aged over the
+                # rest, puts the capacity in the (plain) trigger interval; a run's first
+                # slip from an unobserved initial contact, uniform over the interval
+                self._s_target = self.position(z_aged, x_prev[nx], e0[nx], Pn, ops=ca)
+                s_all = w[self.i_s : self.i_s + self.n_s]
+                # (scaled to µm of slip length, so that the feasibility tolerance means
+                # the same as for the slip lengths; a 1x1 MX indexed by a list comes back
+                # as a row: force columns)
+                s_next = ca.reshape(s_all[self.ev_next.tolist()], -1, 1)
+                g = ca.vertcat(g, START_SCALE_UM * (s_next - ca.reshape(self._s_target, -1, 1)))
+                if not self.interval_triggers:
+                    res.append(math.sqrt(12) * (ca.reshape(s_all[self.ev_firsts.tolist()], -1, 1) - 0.5))
+        for r in self.creep_runs:
+            Pr = dict(P, k=r.k, Nb=r.Nb)
+            vp = r.fp * step
+            zss = self.law.steady_state(vp, Pr, ops=ca)
+            mu = self.law.static_coefficient(zss, Pr, ops=ca) + P["A"] * ca.log(1 + vp / P["vc"])
+            f = self.model.spring_force(r.steady_mean_e, Pr, ops=ca)
+            res.append((f - mu * self.model.normal_load(Pr)) / (r.k * r.steady_se))
+        return A, ca.vertcat(*res), g
+
+    def build(self):
+        """Residual, constraint and derivative Functions (and Ipopt, when chosen)."""
+        opts = self.opts
+        E = self.E
+        w = ca.MX.sym("w", self.n_w)
+        Ysym = ca.MX.sym("Y", 2, max(E, 1))
+        A, rY, gY = self._symbolic(w, Ysym)
+        R_w = ca.jacobian(rY, w)
+        if self.n_s:
+            self._s_target_fun = ca.Function("s_target", [w, Ysym], [self._s_target])
+        if E:
+            ix = self.arcs.index
+            # the block position matters to an arc only through the topography ripple:
+            # without it, two fewer integrations per arc and Jacobian
+            topo = "topo_amp" in self.theta.names or self.values.get("topo_amp", 0.0) != 0.0
+            rows = ([ix["x0_um"]] if topo else []) + [ix["e0_um"], ix["state0"]] \
+                + [ix[n] for n in self.theta.names if n in ix]
+            self._cb_jac = _ArcCallback("arc_jacs", self.arcs, E, opts.threads, True, self.counter, rows,
+                                        scheme=opts.arc_jacobian)
+            self._cb_val = _ArcCallback("arcs", self.arcs, E, opts.threads, False, self.counter,
+                                        jac_callback=self._cb_jac)
+            Y = self._cb_val(A)[:2, :]
+            JA = ca.MX(_blockdiag_sparsity(2, self.arcs.n_in, E), ca.vec(self._cb_jac(A)))
+            dY_dw = ca.mtimes(JA, ca.jacobian(ca.vec(A), w))
+            r = ca.substitute(rY, Ysym, Y)
+            g = ca.substitute(gY, Ysym, Y)
+            Jr = ca.substitute(R_w + ca.mtimes(ca.jacobian(rY, ca.vec(Ysym)), dY_dw), Ysym, Y)
+            Jg = ca.substitute(ca.jacobian(gY, w) + ca.mtimes(ca.jacobian(gY, ca.vec(Ysym)), dY_dw), Ysym, Y)
+            self._arc_inputs = ca.Function("arc_inputs", [w], [A])
+        else:
+            r, g, Jr, Jg = rY, gY, R_w, ca.MX(0, self.n_w)
+            self._arc_inputs = None
+        self._r_fun = ca.Function("r", [w], [r])
+        self._g_fun = ca.Function("g", [w], [g])
+        self._jr_fun = ca.Function("Jr", [w], [Jr])
+        self._jg_fun = ca.Function("Jg", [w], [Jg])
+        self.n_g = int(g.numel())
+        self.n_r = int(r.numel())
+        if opts.solver == "ipopt":
+            self._build_ipopt(w, r, g, Jr, Jg, opts)
+        return self
+
+    # ---------------------------------------------------------------- numerics
+    def evaluate(self, w, jac: bool = False):
+        """(r, g) or (r, g, Jr, Jg) at w; an arc that cannot be integrated at a trial point
+        gives non-finite values (the point is rejected, the fit goes on)."""
+        r = np.array(self._r_fun(w)).ravel()
+        g = np.array(self._g_fun(w)).ravel()
+        if not jac:
+            return r, g
+        return r, g, _to_csc(self._jr_fun(w), self.n_w), _to_csc(self._jg_fun(w), self.n_w)
+
+    def residuals(self, w) -> np.ndarray:
+        return self.evaluate(w)[0]
+
+    def arc_inputs(self, w: np.ndarray) -> np.ndarray:
+        """The arcs' input matrix at w (n_in × E, :class:`identify.fitting.arcs.ArcFunctions` order)."""
+        if not self.E:
+            return np.zeros((self.arcs.n_in, 0))
+        return np.array(self._arc_inputs(w))
+
+    def arc_outputs(self, w: np.ndarray) -> np.ndarray:
+        if not self.E:
+            return np.zeros((5, 0))
+        return self.arcs.evaluate(np.array(self._arc_inputs(w)), self.opts.threads)
+
+    def initial_w(self, theta_values: Mapping[str, float]) -> np.ndarray:
+        """Parameters from ``theta_values``; plateau positions from the frames."""
+        w = np.zeros(self.n_w)
+        th = self.theta.to_scaled(theta_values)
+        w[: self.n_theta] = np.clip(th, self.theta.lo + 1e-9, self.theta.hi - 1e-9)
+        w[self.i_x : self.i_x + self.P] = self.pl_x0 / LENGTH_UNIT
+        w[self.i_phi : self.i_phi + self.n_phase] = 0.5
+        w[self.i_s : self.i_s + self.n_s] = 0.5
+        if self.E:
+            w = self.settle_arcs(w)  # sized first from the mid-interval starts: they always slip
+        return w
+
+    def size_arcs(self, w: np.ndarray) -> int:
+        """Grow each arc's span (doubling, up to the next trigger) until its block stops;
+        returns how many still move at their horizon."""
+        cap = np.minimum(self.ev_gap, self.opts.max_arc_steps)
+        at_end = self.arc_outputs(w)[4] > 0.5
+        for _ in range(12):
+            moving = at_end & (self.ev_M < cap)
+            if not moving.any():
+                break
+            self.ev_M = np.where(moving, np.minimum(2 * self.ev_M, cap), self.ev_M)
+            self.build()
+            at_end = self.arc_outputs(w)[4] > 0.5
+        # (the count is of the arcs as they are now: no evaluation more than the loop's, which
+        # matters for a mode-sequence trial, whose set-up sizes the arcs twice)
+        return int(at_end.sum())
+
+    def bounds(self, fixed: Mapping[int, float] | None = None):
+        lbx = np.full(self.n_w, -np.inf)
+        ubx = np.full(self.n_w, np.inf)
+        lbx[: self.n_theta], ubx[: self.n_theta] = self.theta.lo, self.theta.hi
+        if not self.phases_free:
+            # slips recur at the middle of the step interval on average (uniform phase)
+            lbx[self.i_phi : self.i_s] = ubx[self.i_phi : self.i_s] = 0.5
+        else:
+            # a run's common phase lies inside the trigger interval: the interval
+            # constraint itself, for what all its slips share
+            lbx[self.i_phi : self.i_s], ubx[self.i_phi : self.i_s] = 0.0, 1.0
+        if self.interval_triggers:
+            # the slip happened at this step: the capacity inside the step's force
+            # interval (the plain one: the aging during the step, which position()
+            # subtracts from the lower end, would make the bound depend on the parameters)
+            lbx[self.i_s : self.i_s + self.n_s], ubx[self.i_s : self.i_s + self.n_s] = 0.0, 1.0
+        for i, v in (fixed or {}).items():
+            lbx[i] = ubx[i] = v
+        return lbx, ubx
+
+    # ---------------------------------------------------------------- solvers
+    def solve(self, w0: np.ndarray, fixed: Mapping[int, float] | None = None, loose: bool = False) -> dict:
+        """Solve from ``w0`` (the Gauss–Newton SQP, or Ipopt). ``loose``: to the
+        tolerances a mode-sequence decision needs (``LOOSE_STAT_TOL``, ``LOOSE_FEAS_TOL``),
+        for a solution that only decides the next sequence; the result says ``loose``."""
+        self.jacobian_scheme(self.opts.arc_jacobian, SOLVE_REL_STEP)
+        if self.opts.solver == "ipopt":
+            return self.solve_ipopt(w0, fixed, loose)
+        if not loose:
+            return self._solve_gn_resolved(w0, fixed)
+        # (only the convergence test: the line search's and the stall rule's tolerances
+        # stay, else a solve still far off stalls on small gains, measured at ½χ² 69.9
+        # against 16.5 on two short runs)
+        self._loose = True
+        try:
+            return dict(self._solve_gn_resolved(w0, fixed), loose=True)
+        finally:
+            self._loose = False
+
+
+    def near_continuity(self, g: np.ndarray) -> np.ndarray:
+        """Per arc: whether every constraint its inputs or outputs enter is within
+        ``SHARE_FEAS`` of continuity at a point whose constraints are ``g`` (its own slip,
+        the previous slip's, which ends on the plateau it starts from, and the start
+        positions its end state and its start take part in).
+
+        Why per arc: one slip far off continuity had kept every slip on its own
+        differences. Measured on the 10-run speed set, after the first iteration of a
+        solve from a staged start 95-97 % of the arcs were within 10 nm while the
+        largest violation stayed at 0.02-0.08 µm for two or three iterations more, each
+        ~2.4 s on the arcs' own differences against ~0.4 s shared."""
+        E = self.E
+        a = np.abs(np.asarray(g, float).ravel())
+        near = np.ones(E, bool)
+        if not a.size or not E or a.max() < SHARE_FEAS:
+            return near
+        loc = a[:E].copy()
+        nx = self.ev_next
+        # (a constraint that could not be evaluated is NaN: its arcs are not near, no warning)
+        with np.errstate(invalid="ignore"):
+            np.maximum.at(loc, nx, a[nx - 1])
+            if a.size >= E + nx.size and self.n_s:
+                gs = a[E:E + nx.size]
+                np.maximum.at(loc, nx, gs)
+                np.maximum.at(loc, nx - 1, gs)
+            return loc < SHARE_FEAS
+
+    def _cb_jac_shared(self) -> bool:
+        """Whether the arcs' Jacobian is by forward differences shared among nearly equal
+        arcs now (``SHARE_TOL``; the covariance's shared central ones are not the solver's)."""
+        cb = getattr(self, "_cb_jac", None)
+        return cb is not None and cb.share is not None and cb.scheme == "forward"
+
+    def _cb_jac_forward(self) -> bool:
+        """Whether the arcs' Jacobian is by forward differences now."""
+        cb = getattr(self, "_cb_jac", None)
+        return cb is not None and cb.scheme == "forward"
+
+
+    def moving_times(self, w: np.ndarray) -> dict:
+        """Per run, how long each slip's block moves after its trigger step (s)."""
+        Y = self.arc_outputs(w)
+        out: dict = {}
+        for e in range(self.E):
+            out.setdefault(int(self.ev_run[e]), []).append(Y[2, e] * 1e-3)
+        return {k: np.array(v) for k, v in out.items()}
+
+    # ---------------------------------------------------------------- statistics
+    def chi2_constant(self) -> float:
+        """χ² of the frames that the compressed residuals leave out (within plateaus)."""
+        return float(sum(r.s_res / r.sigma**2 for r in self.runs if r.kind == "events"))
+
+    def n_observations(self) -> int:
+        """Frames, slip triggers and one phase pseudo-observation per run, creep means
+        (with the interval encoding the triggers are bounds, not observations)."""
+        per_slip = 0 if self.interval_triggers else 1
+        return int(sum(r.plateau_n.sum() + per_slip * len(r.trigger_steps) if r.kind == "events" else 1
+                       for r in self.runs))
+
+    def dof(self) -> int:
+        """Degrees of freedom of the χ²: observations less free dimensions (at least 1)."""
+        return max(self.n_observations() - self.n_effective(), 1)
+
+    def n_effective(self) -> int:
+        """Free dimensions: parameters, offsets, and per events run its first plateau,
+        its trigger phase (free_phase) and its first slip's start (arc_start="aged"); the
+        other plateaus and starts follow from the constraints."""
+        per_run = 1 + self.phases_free
+        first_starts = len(self.ev_firsts) if self.n_s else 0
+        return self.n_theta + self.n_off + per_run * sum(1 for r in self.runs if r.kind == "events") + first_starts
+
+    def residual_groups(self) -> dict:
+        """Index ranges of the residual vector: plateaus, slopes, triggers, creep."""
+        n_slope = sum(1 for r in self.runs if r.kind == "events" and r.s_nn > 0)
+        p = self.P
+        t0 = p + n_slope
+        # phase rows exist with any slip; then the first slips' start positions
+        t1 = t0 if self.interval_triggers else \
+            t0 + self.n_trig + (self.n_phase if self.E else 0) + (len(self.ev_firsts) if self.n_s else 0)
+        return dict(plateaus=(0, p), slopes=(p, t0), triggers=(t0, t1),
+                    creep=(t1, t1 + len(self.creep_runs)))
+
+    def trigger_runs(self) -> np.ndarray:
+        """Run index of each trigger residual (slips, then one phase residual per run)."""
+        if not self.E or self.interval_triggers:
+            return np.zeros(0, int)
+        phase_runs = sorted(self.phase_of_run, key=self.phase_of_run.get)
+        first = self.ev_run[self.ev_firsts] if self.n_s else np.zeros(0, int)
+        return np.r_[self.ev_run[self.ev_next], np.array(phase_runs, int), first]
+
+
+    def jacobian_scheme(self, scheme: str, rel_step: float | None = None, share=True, tol: float | None = None):
+        """Finite differences of the arcs from now on: ``forward`` or ``central``, with
+        relative step ``rel_step`` (None: the arcs' default, 1e-6; :meth:`solve` uses
+        ``SOLVE_REL_STEP``). They are shared among arcs whose inputs agree to ``tol``
+        (default: ``SHARE_TOL`` for forward ones; central ones, asked for their
+        accuracy, only with a ``tol``) if ``share`` (True, or a bool per arc: the arcs
+        that may; the others keep their own) and the option ``share_arc_jacobian`` say
+        so."""
+        cb = getattr(self, "_cb_jac", None)
+        may = None
+        if isinstance(share, np.ndarray):
+            may, share = share, bool(share.any())
+        if tol is None and scheme == "forward":
+            tol = SHARE_TOL
+        elif tol is None and scheme == "exact":
+            tol = EXACT_SHARE_TOL
+        if not (share and self.opts.share_arc_jacobian):
+            tol = None
+        own = None if tol is None or may is None or may.all() else ~may
+        if cb is not None and ((cb.scheme, cb.rel_step, cb.share) != (scheme, rel_step, tol)
+                               or not _same_mask(cb.own, own)):
+            cb.scheme, cb.rel_step, cb.share, cb.own, cb._key = scheme, rel_step, tol, own, None
+            if own is not None:
+                log.debug("arc differences shared among the %d of %d arcs near continuity",
+                          int(own.size - own.sum()), own.size)
+        return self
+
+

@@ -1,0 +1,347 @@
+"""Candidate effects for the sim-to-real diagnosis (DESIGN.md §4).
+
+Each candidate is a model extension with its own parameter(s) whose null value gives
+back the baseline. The simulator and the identification NLP carry every extension
+(:mod:`identify.model.params`, kinds ``effect`` and ``measurement``), so a candidate is just a
+choice of parameters to free, their null values, bounds, and the features of the data it
+should touch. Adding an effect is one small subclass of :class:`Effect`; it registers
+itself under its ``id``.
+
+Two candidates are not nested in the baseline: the alternative aging laws
+(``aging_logarithmic``, ``aging_logistic``) replace the exponential law. They are
+compared by ΔAIC, not by a likelihood-ratio test.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import ClassVar
+
+from identify.model.params import SPECS
+
+__all__ = ["Effect", "EFFECTS", "get_effect", "effect_ids"]
+
+EFFECTS: dict[str, Effect] = {}
+
+
+class Effect:
+    """A candidate model extension.
+
+    Class attributes
+    ----------------
+    id : str
+        The name used by the CLI (``--effects``) and in results.
+    parameters : tuple of str
+        Model parameters freed when the candidate is tried.
+    null : dict
+        Values that give back the baseline. ``None``: the baseline's own (fixed) value.
+    bounds : dict
+        name -> (lower, upper) for the candidate fit (default: the parameter table's).
+    law : str or None
+        An alternative aging law that replaces the baseline's (non-nested candidate).
+    touches : tuple of str
+        Features of the data the effect should move (the ``where`` names).
+    magnitude : (parameter, realistic value, unit shown)
+        The parameter and value used to simulate a data set with the effect on (tests,
+        benchmark), and its display unit.
+    """
+
+    id: ClassVar[str] = ""
+    parameters: ClassVar[tuple] = ()
+    null: ClassVar[Mapping[str, float | None]] = {}
+    bounds: ClassVar[Mapping[str, tuple]] = {}
+    law: ClassVar[str | None] = None
+    touches: ClassVar[tuple] = ()
+    magnitude: ClassVar[tuple] = ()
+
+    def __init_subclass__(cls, **kw):
+        super().__init_subclass__(**kw)
+        if cls.id:
+            EFFECTS[cls.id] = cls()
+
+    # ------------------------------------------------------------------ use
+    @property
+    def nested(self) -> bool:
+        return self.law is None
+
+    @property
+    def defining(self) -> tuple:
+        """The parameters whose null defines the baseline (for topography its amplitude:
+        wavelength and phase mean nothing at zero amplitude)."""
+        return self.parameters[:1] if self.id == "topography" else self.parameters
+
+    @property
+    def description(self) -> str:
+        doc = (type(self).__doc__ or "").strip().splitlines()
+        return doc[0] if doc else self.id
+
+    def null_values(self, baseline: Mapping[str, float]) -> dict:
+        """The values of this candidate's parameters that give back ``baseline``."""
+        return {n: (baseline[n] if self.null.get(n) is None else float(self.null[n])) for n in self.parameters}
+
+    def applicable(self, free: tuple, law: str) -> str | None:
+        """Why this candidate cannot extend a baseline with these free parameters and law
+        (``None``: it can)."""
+        if self.law is not None and self.law == law:
+            return f"the baseline already uses the {law} law"
+        taken = [n for n in self.parameters if n in free]
+        if taken and self.law is None:
+            return f"{', '.join(taken)} already free in the baseline"
+        return None
+
+    def nudges(self) -> list:
+        """Starts off the null for parameters whose null sits on a bound (where the
+        refit could not leave it by the local slope alone): the parameter table's typical
+        scale, inside the bounds, with the other parameters from a fresh staged start (the
+        baseline's have compensated for the missing effect: the paper's A = 0 fit raises
+        μmin to shorten its slips, and from there A can only grow by moving μmin back)."""
+        out = []
+        for n in self.parameters:
+            lo, hi = self.bounds.get(n, (SPECS[n].lower, SPECS[n].upper))
+            null = self.null.get(n)
+            if null is not None and null in (lo, hi):
+                step = SPECS[n].scale if null == lo else -SPECS[n].scale
+                out.append({n: float(min(max(null + step, lo), hi)), "_staged": True})
+        return out
+
+    def scaled_magnitude(self, scale: float) -> float:
+        """The effect's parameter at ``scale`` times its realistic departure from the null
+        (a detection-limit sweep): a factor whose null is 1 (``step_scale`` 1.05) scales
+        its excess, 1.05 -> 1.015 at 0.3, not to 0.315; a null taken from the baseline
+        (None) counts as 0."""
+        name, value, _ = self.magnitude
+        null = self.null.get(name)
+        null = 0.0 if null is None else float(null)
+        return null + scale * (float(value) - null)
+
+    def simulation_values(self, magnitude: float | None = None, values: Mapping[str, float] | None = None) -> dict:
+        """Parameter values that switch the effect on (withheld-effect data sets, the
+        regime screen); ``values``: the model's others (an aging law's own parameters are
+        set from them)."""
+        name, value, _ = self.magnitude
+        return {name: float(value if magnitude is None else magnitude)}
+
+    def to_json(self) -> dict:
+        return dict(id=self.id, parameters=list(self.parameters), law=self.law, touches=list(self.touches),
+                    description=self.description)
+
+    def __repr__(self) -> str:
+        return f"<Effect {self.id}: {', '.join(self.parameters) or self.law}>"
+
+
+def effect_ids() -> tuple:
+    return tuple(EFFECTS)
+
+
+def get_effect(name: str) -> Effect:
+    try:
+        return EFFECTS[name]
+    except KeyError:
+        raise ValueError(f"unknown effect {name!r}; choose from {', '.join(EFFECTS)}") from None
+
+
+# ----------------------------------------------------------------------------- library
+class VelocityStrengthening(Effect):
+    """Velocity strengthening: μ = ψ + A·ln(1 + |ẋ|/vc) (Eq. 18); null A = 0.
+
+    Only a candidate when the baseline fixes A (the paper's own story: without it the
+    simulated slips were too long)."""
+
+    id = "velocity_strengthening"
+    parameters = ("A",)
+    null = {"A": 0.0}
+    bounds = {"A": (0.0, 0.2)}
+    touches = ("slip_length", "post_slip_level", "creep_level")
+    magnitude = ("A", 0.015, "-")
+
+    def applicable(self, free, law):
+        if "A" in free:
+            return "A already free in the baseline"
+        return None
+
+
+class AgingLogarithmic(Effect):
+    """Logarithmic (Dieterich–Ruina) aging: ψ = μ0 + B·ln(1 + vc·φ/dc), dφ/dt = 1 − |ẋ|φ/dc.
+
+    Replaces the exponential law (μmax, μmin, τ become μ0, B): non-nested, scored by ΔAIC."""
+
+    id = "aging_logarithmic"
+    law = "logarithmic"
+    parameters = ("mu_0", "B")
+    touches = ("static_friction", "static_friction_vs_rest")
+    magnitude = ("law", "logarithmic", "")
+
+    def simulation_values(self, magnitude=None, values=None):
+        """μ0 and B with the exponential law's static friction at similar rests:
+        μs(t) = μ0 + B·ln(1 + vc·t/dc) through μmin at 0 and μmax at 1 s of rest."""
+        if values is None:
+            return {}
+        vc, dc = values["vc"], values["dc"]
+        B = (values["mu_max"] - values["mu_min"]) / math.log(1 + vc * 1.0 / dc)
+        return dict(mu_0=float(values["mu_min"]), B=float(B))
+
+
+class AgingLogistic(Effect):
+    """Logistic (Carlson–Batista) aging: dψ/dt = (ψ − μmin)(μmax − ψ)/(τΔ) − (ψ − μmin)|ẋ|/dc.
+
+    Replaces the exponential law with the same parameters: non-nested, scored by ΔAIC."""
+
+    id = "aging_logistic"
+    law = "logistic"
+    parameters = ("mu_max", "mu_min", "tau")
+    touches = ("static_friction", "static_friction_vs_rest")
+    magnitude = ("law", "logistic", "")
+
+    def simulation_values(self, magnitude=None, values=None):
+        return {}  # the same parameters, another curve shape
+
+
+class Rejuvenation(Effect):
+    """Finite memory length: dψ/dt ∋ −(ψ − μmin)·|ẋ|/dc (Eq. 15); null dc = the baseline's.
+
+    A longer dc keeps part of the aged contact through a slip: higher, longer slips."""
+
+    id = "rejuvenation"
+    parameters = ("dc",)
+    null = {"dc": None}
+    bounds = {"dc": (1e-10, 1e-5)}
+    touches = ("slip_length", "static_friction")
+    magnitude = ("dc", 1e-6, "m")
+
+
+class Damping(Effect):
+    """Extra viscous damping: m·ẍ = F_s − μN − (c + c_extra)·ẋ; null c_extra = 0."""
+
+    id = "damping"
+    parameters = ("c_extra",)
+    null = {"c_extra": 0.0}
+    bounds = {"c_extra": (-3e-7, 1e-3)}
+    touches = ("slip_length",)
+    magnitude = ("c_extra", 2e-5, "N s/m")
+
+
+class SpringNonlinearity(Effect):
+    """Nonlinear spring: F_s = k·e·(1 + β·e²); null β = 0."""
+
+    id = "spring_nonlinearity"
+    parameters = ("beta",)
+    null = {"beta": 0.0}
+    bounds = {"beta": (-1e10, 1e10)}
+    touches = ("static_friction", "slip_length", "post_slip_level")
+    magnitude = ("beta", 1e9, "1/m^2")
+
+
+class SpringConstant(Effect):
+    """Spring-constant error: true k = s_k·k_nominal; null s_k = 1.
+
+    Nearly absorbed by the friction coefficients (μ·Nb/k sets every elongation)."""
+
+    id = "spring_constant"
+    parameters = ("k_scale",)
+    null = {"k_scale": 1.0}
+    bounds = {"k_scale": (0.5, 2.0)}
+    touches = ("static_friction", "slip_length")
+    magnitude = ("k_scale", 1.15, "-")
+
+
+class LoadOffset(Effect):
+    """Adhesion-like extra normal force: N = Nb + F_a (Eq. 6); null F_a = 0."""
+
+    id = "load_offset"
+    parameters = ("load_offset",)
+    null = {"load_offset": 0.0}
+    bounds = {"load_offset": (-5e-6, 5e-5)}
+    touches = ("static_friction", "slip_length", "conditions")
+    magnitude = ("load_offset", 2e-6, "N")
+
+
+class LoadScale(Effect):
+    """Normal-load calibration error: true Nb = s_N·Nb_nominal; null s_N = 1.
+
+    Exactly absorbed by the friction coefficients when μmax, μmin and A are free."""
+
+    id = "load_scale"
+    parameters = ("load_scale",)
+    null = {"load_scale": 1.0}
+    bounds = {"load_scale": (0.5, 2.0)}
+    touches = ("static_friction", "slip_length")
+    magnitude = ("load_scale", 1.15, "-")
+
+
+class StepSize(Effect):
+    """Puller step differs from the metadata: Δx_true = s_x·Δx_nominal; null s_x = 1."""
+
+    id = "step_size"
+    parameters = ("step_scale",)
+    null = {"step_scale": 1.0}
+    bounds = {"step_scale": (0.5, 2.0)}
+    touches = ("stick_slope", "post_slip_level")
+    magnitude = ("step_scale", 1.05, "-")
+
+
+class Topography(Effect):
+    """Friction varying along the track, the same for every run of a device:
+    μ_topo(x) = a·sin(2πx/λ + φ); null a = 0.
+
+    Its wavelength and phase are not defined at a = 0: the candidate starts from the
+    ripple that the ``position`` feature of the diagnosis finds in the residuals."""
+
+    id = "topography"
+    parameters = ("topo_amp", "topo_phase", "topo_wavelength")
+    null = {"topo_amp": 0.0, "topo_phase": 0.0, "topo_wavelength": None}
+    # wavelengths below ~1 µm (twenty steps) would let the ripple give every slip its own
+    # capacity: with slip positions known to tens of nm it then fits noise, not a track
+    bounds = {"topo_amp": (-0.3, 0.3), "topo_wavelength": (1e-6, 1e-4), "topo_phase": (-20.0, 20.0)}
+    touches = ("position", "static_friction", "slip_length")
+    magnitude = ("topo_amp", 0.03, "-")
+
+    def simulation_values(self, magnitude=None, values=None):
+        return {"topo_amp": float(0.03 if magnitude is None else magnitude), "topo_wavelength": 4e-6,
+                "topo_phase": 0.7}
+
+
+class Drift(Effect):
+    """Slow drift of the measured elongation: e_meas = e + r_d·t; null r_d = 0."""
+
+    id = "drift"
+    parameters = ("drift_rate",)
+    null = {"drift_rate": 0.0}
+    bounds = {"drift_rate": (-1e-5, 1e-5)}
+    touches = ("time", "stick_slope", "post_slip_level")
+    magnitude = ("drift_rate", 5e-8, "m/s")
+
+
+class MotionBlur(Effect):
+    """Motion blur: each frame averages e over an exposure T centred on it; null T = 0.
+
+    With frames placed symmetrically in the step interval the plateau means do not move
+    (:meth:`identify.fitting.problem.Problem._camera_terms`): the blur then lies only in frames taken
+    during slips, which the features leave out."""
+
+    id = "motion_blur"
+    parameters = ("exposure",)
+    null = {"exposure": 0.0}
+    bounds = {"exposure": (0.0, 1e-2)}
+    touches = ("post_slip_level",)
+    magnitude = ("exposure", 2e-3, "s")
+
+
+class StickThreshold(Effect):
+    """Stick threshold: a block slower than v_stick is held while |F_s| ≤ (ψ + A·ln(1 +
+    v_stick/vc))·N (the simulator's stick option, a Karnopp band); null = the baseline's."""
+
+    id = "stick_threshold"
+    parameters = ("v_stick",)
+    null = {"v_stick": None}
+    bounds = {"v_stick": (0.0, 1e-2)}
+    touches = ("slip_length", "creep_level")
+    magnitude = ("v_stick", 1e-4, "m/s")
+
+
+def display(name: str, value: float) -> str:
+    """A parameter value in its display unit."""
+    s = SPECS[name]
+    v = s.to_display(value)
+    unit = "" if s.shown_unit == "-" else s.shown_unit
+    return f"{v:.4g} {unit}".strip() if math.isfinite(v) else "nan"

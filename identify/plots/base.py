@@ -1,0 +1,170 @@
+"""Figures a researcher would put in a paper. Every function takes ``ax``/``axes`` (or
+makes them), returns them, labels axes in display units (µm, µN, ms) and never calls
+``plt.show()``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = ["plot_simulation", "plot_regime_map", "save_figure"]
+
+_REGIME_COLOURS = {
+    "stick-slip": "#2c7fb8",
+    "stepping": "#fdae61",
+    "creep": "#d7191c",
+    "no-slip": "#bdbdbd",
+    "error": "#000000",
+}
+
+
+def pyplot():
+    import matplotlib
+
+    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "ps", "cairo") and not _interactive():
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _interactive() -> bool:
+    import sys
+
+    return hasattr(sys, "ps1") or "ipykernel" in sys.modules
+
+
+def save_figure(fig, path) -> list:
+    """Save ``fig`` to ``path``; a path without suffix gets both .png and .pdf."""
+    from pathlib import Path
+
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    # run names carry dots (k2.13): only a known figure format counts as a suffix
+    if p.suffix.lower() in (".png", ".pdf", ".svg", ".eps", ".jpg", ".jpeg", ".tif", ".tiff"):
+        paths = [p]
+    else:
+        paths = [p.with_name(p.name + ".png"), p.with_name(p.name + ".pdf")]
+    for q in paths:
+        fig.savefig(q, dpi=200, bbox_inches="tight")
+    return paths
+
+
+def plot_simulation(result, axes: Sequence | None = None, t_window: tuple[float, float] | None = None,
+                    n_slips: int = 4):
+    """The five panels of the paper's Fig. 13 for a simulated run.
+
+    (a) puller and block positions, (b) block velocity, (c) spring elongation,
+    (d) contact state ψ, (e) friction capacity F0 = μ·N against the spring force.
+
+    Parameters
+    ----------
+    result : SimulationResult
+    axes : sequence of 5 Axes, optional
+    t_window : (t0, t1) in s, optional
+        Default: from just before the second slip to just after the ``n_slips``-th later
+        one (the first slip starts from the fully aged contact).
+    """
+    plt = pyplot()
+    if axes is None:
+        fig, axes = plt.subplots(5, 1, figsize=(7, 10), sharex=True, constrained_layout=True)
+    ev = result.slips
+    c = result.conditions
+    if t_window is None:
+        if len(ev) >= 2:
+            i0 = 1
+            i1 = min(len(ev) - 1, i0 + n_slips)
+            t0 = ev["time_s"][i0] - 0.25 * max(ev["rest_time_s"][i0], 1 / c.step_frequency)
+            t1 = ev["time_s"][i1] + ev["duration_s"][i1] + 0.1 * max(ev["rest_time_s"][i1], 1 / c.step_frequency)
+            if i1 == i0:
+                t1 = min(c.end_time, t0 + 3 * max(ev["rest_time_s"][i0], 1 / c.step_frequency))
+        else:
+            t0, t1 = 0.0, c.end_time
+    else:
+        t0, t1 = t_window
+    t = np.linspace(t0, t1, 4000)
+    extra = [ph.t for ph in result.phases]
+    if extra:
+        t = np.unique(np.concatenate([t] + [x[(x >= t0) & (x <= t1)] for x in extra]))
+    # values just after each step instant, for crisp staircases
+    n_first = int(np.ceil((t0 - c.t_first) * c.step_frequency))
+    steps = c.t_first + np.arange(max(n_first, 0), c.n_steps) / c.step_frequency
+    steps = steps[(steps >= t0) & (steps <= t1)]
+    t = np.unique(np.concatenate([t, steps, steps - 1e-12]))
+    P = result._P
+    model = result.model
+    xp = result.puller_position(t)
+    x = result.block_position(t)
+    v = result.velocity(t)
+    state = result.state_at(t)
+    e = xp - x
+    N = model.normal_load(P)
+    psi = model.law.static_coefficient(state, P)
+    # at rest the capacity is what holds the block (with the stick band when that option is on)
+    cap = np.where(v == 0, model.hold_coefficient(state, x, P),
+                   model.friction_coefficient(state, np.abs(v), x, P)) * N
+    spring = model.spring_force(e, P)
+    tm = t * 1e3
+    ax = axes
+    ax[0].plot(tm, xp * 1e6, color="0.5", label="puller $x_p$")
+    ax[0].plot(tm, x * 1e6, color="C0", label="block $x$")
+    ax[0].set_ylabel("position (µm)")
+    ax[0].legend(loc="upper left", fontsize=8)
+    ax[1].plot(tm, v * 1e2, color="C1")
+    ax[1].set_ylabel("velocity (cm/s)")
+    ax[2].plot(tm, e * 1e6, color="C2")
+    ax[2].set_ylabel("elongation (µm)")
+    ax[3].plot(tm, psi, color="C3")
+    ax[3].axhline(P.get("mu_min", np.nan), color="0.6", ls=":", lw=0.8)
+    ax[3].axhline(P.get("mu_max", np.nan), color="0.6", ls=":", lw=0.8)
+    ax[3].set_ylabel(r"state $\psi$")
+    ax[4].plot(tm, cap * 1e6, color="C3", label=r"friction capacity $F_0=\mu N_b$")
+    ax[4].plot(tm, spring * 1e6, color="C2", ls="--", label=r"spring force $k e$")
+    ax[4].set_ylabel("force (µN)")
+    ax[4].set_xlabel("time (ms)")
+    ax[4].legend(loc="upper left", fontsize=8)
+    for a, letter in zip(ax, "abcde"):
+        a.text(0.99, 0.92, f"({letter})", transform=a.transAxes, ha="right", va="top", fontsize=9)
+    ax[0].set_title(
+        f"{result.coating or ''} k = {c.spring_constant:g} N/m, $N_b$ = {c.normal_load * 1e6:g} µN, "
+        f"$f_p$ = {c.step_frequency:g} Hz ({result.regime})", fontsize=10,
+    )
+    return axes
+
+
+def plot_regime_map(rmap, ax=None):
+    """Regimes over (Nb, fp) for one spring, as coloured cells on log axes."""
+    plt = pyplot()
+    if ax is None:
+        _, ax = plt.subplots(figsize=(5.5, 4), constrained_layout=True)
+    loads = rmap.normal_loads_uN
+    freqs = rmap.step_frequencies_Hz
+
+    def edges(v):
+        lv = np.log10(v)
+        mid = (lv[1:] + lv[:-1]) / 2
+        d0 = (lv[1] - lv[0]) / 2 if len(lv) > 1 else 0.5
+        d1 = (lv[-1] - lv[-2]) / 2 if len(lv) > 1 else 0.5
+        return 10 ** np.concatenate([[lv[0] - d0], mid, [lv[-1] + d1]])
+
+    fe, le = edges(freqs), edges(loads)
+    for i in range(len(loads)):
+        for j in range(len(freqs)):
+            col = _REGIME_COLOURS.get(rmap.regimes[i, j], "white")
+            ax.fill_between([fe[j], fe[j + 1]], le[i], le[i + 1], color=col, lw=0)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlim(fe[0], fe[-1])
+    ax.set_ylim(le[0], le[-1])
+    ax.set_xlabel("step frequency $f_p$ (Hz)")
+    ax.set_ylabel("normal load $N_b$ (µN)")
+    opt = "as written" if not rmap.stick_speed_m_per_s else f"stick band {rmap.stick_speed_m_per_s * 1e6:g} µm/s"
+    ax.set_title(f"{rmap.coating}, k = {rmap.spring_constant_N_per_m:g} N/m ({opt})", fontsize=10)
+    from matplotlib.patches import Patch
+
+    present = [r for r in _REGIME_COLOURS if r in set(rmap.regimes.ravel())]
+    ax.legend(handles=[Patch(color=_REGIME_COLOURS[r], label=r) for r in present], fontsize=7,
+              loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return ax
