@@ -942,7 +942,33 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         result.solver["arc_failure"] = prob.arcs.last_failure[1]
     if opts.stick_speed == "auto" and stick_note and stick_note.startswith("as written") and result.concerns:
         return _stick_by_likelihood(result, data, coating, final_opts, true_values, progress, say)
+    if stick_note and stick_note.startswith("as written"):
+        _flag_stick_dependence(result)
     return result
+
+
+def _flag_stick_dependence(result, other=None) -> None:
+    """Where the fit kept the equations as written without being told (the data's
+    regimes allow both), μmax depends on a choice the data do not make: with the stick
+    option the static capacity carries the band A·ln(1 + v_stick/vc) on top of the aged
+    state, so the same triggers put μmax that much lower. Its interval is conditional on
+    the option, and μmax is flagged with both values (``other``: the fit with the option,
+    when one was made; else the band computed at the estimates)."""
+    from identify.fitting.stick_choice import STICK_SPEED_AUTO
+
+    p, v = result.parameters.get("mu_max"), result.values
+    if p is None or not p.free or "A" not in v or not v.get("vc"):
+        return
+    if other is not None and "mu_max" in other.parameters:
+        alt = float(other["mu_max"].value)
+    else:
+        alt = float(p.value - v["A"] * np.log1p(STICK_SPEED_AUTO / v["vc"]))
+    if not np.isfinite(alt) or abs(p.value - alt) <= (p.stderr or 0.0):
+        return  # (within its own standard error: the choice does not matter here)
+    text = (f"depends on the stick option, which a trace does not show: {p.value:.4g} as written, {alt:.4g} "
+            f"with v_stick = {STICK_SPEED_AUTO:g} m/s (fix v_stick to choose)")
+    p.flag = f"{p.flag}; {text}" if p.flag else text
+    result.solver["stick_alternative"] = dict(v_stick_m_per_s=STICK_SPEED_AUTO, mu_max=alt)
 
 
 def _stick_by_likelihood(result, data, coating, final_opts, true_values, progress, say):
@@ -971,4 +997,5 @@ def _stick_by_likelihood(result, data, coating, final_opts, true_values, progres
         return other
     result.solver["stick_option"] += (f"; with v_stick = {STICK_SPEED_AUTO:g} m/s the fit ended at chi-square "
                                       f"{other.chi2:.6g}, not lower: kept as written")
+    _flag_stick_dependence(result, other)
     return result

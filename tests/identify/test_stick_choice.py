@@ -6,6 +6,7 @@ to, chooses the option by the data's regimes and names it."""
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from identify import FitOptions, SimulationOptions, fit, simulate
@@ -50,6 +51,33 @@ def test_data_made_as_written_pass_the_check():
                            travel_um=8, options=SimulationOptions(record=False)).sample(noise_nm=20, seed=0, name="w")]
     res = fit(traces, coating="FOTAS", options=FitOptions(threads=1, max_iter=3, sequence_trials=0))
     assert res.solver["stick_option"].startswith("as written (v_stick = 0): checked")
+    # μmax as written is the static capacity; with the stick option the same triggers put
+    # it lower by the band A·ln(1 + v_stick/vc), and the trace cannot tell which holds
+    v = res.values
+    alt = v["mu_max"] - v["A"] * np.log1p(1e-5 / v["vc"])
+    assert res.solver["stick_alternative"]["mu_max"] == pytest.approx(alt)
+    assert "depends on the stick option" in res["mu_max"].flag and f"{alt:.4g}" in res["mu_max"].flag
+    assert "depends on the stick option" in res.report()
+
+
+def test_a_flag_only_where_the_stick_option_moves_mu_max():
+    """The flag is for a choice that matters: not where the band is within μmax's own
+    standard error, not where the caller chose."""
+    from identify.fitting.driver import _flag_stick_dependence
+    from identify.fitting.result import ParameterEstimate
+
+    class Result:
+        def __init__(self, A, stderr):
+            self.parameters = dict(mu_max=ParameterEstimate("mu_max", 0.8, stderr, (0.79, 0.81), True, "-"))
+            self.values = dict(mu_max=0.8, A=A, vc=1e-6)
+            self.solver = {}
+
+    small = Result(A=1e-5, stderr=1e-3)  # band 2.4e-5
+    _flag_stick_dependence(small)
+    assert small.parameters["mu_max"].flag is None and "stick_alternative" not in small.solver
+    big = Result(A=0.018, stderr=1e-3)  # band 0.043, the robustness benchmark's clean set 9
+    _flag_stick_dependence(big)
+    assert big.solver["stick_alternative"]["mu_max"] == pytest.approx(0.8 - 0.018 * np.log(11))
 
 
 def test_a_given_stick_option_is_never_second_guessed():
