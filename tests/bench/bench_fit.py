@@ -428,7 +428,8 @@ def _robust_job(job):
     return dict(_judge(traces, truth, seed, False), set=f"effect {which}", runs=len(traces))
 
 
-def robustness(n_sets: int, effects, seed: int, workers: int = 1, record: str | None = None) -> dict:
+def robustness(n_sets: int, effects, seed: int, workers: int = 1, record: str | None = None,
+               only: list | None = None) -> dict:
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     from identify.fitting.driver import FitOptions
@@ -438,7 +439,8 @@ def robustness(n_sets: int, effects, seed: int, workers: int = 1, record: str | 
     done = {}
     if record and os.path.exists(record):
         done = {row["set"]: row for row in _record_rows(record) if row.get("context") == context}
-    jobs = [("clean", i, seed) for i in range(n_sets)] + [("effect", e, seed) for e in effects]
+    jobs = [("clean", i, seed) for i in (only if only is not None else range(n_sets))] \
+        + [("effect", e, seed) for e in effects]
     names = [f"{kind} {which}" for kind, which, _ in jobs]
     print(f"  {'set':<24} {'wall s':>7} {'chi2':>10} {'truth chi2':>10}  reached  intervals  status")
     rows = {}
@@ -521,6 +523,7 @@ def main(argv=None) -> int:
     b.add_argument("--seed", type=int, default=0)
     b.add_argument("--workers", type=int, default=1)
     b.add_argument("--record", metavar="FILE", help="append each set as it finishes; resume from FILE")
+    b.add_argument("--only", metavar="I,J", help="only these clean sets (e.g. the ones a change is for)")
     for p in (c, s, r, b):
         p.add_argument("--json", metavar="OUT")
     a = ap.parse_args(argv)
@@ -545,7 +548,8 @@ def main(argv=None) -> int:
     elif a.what == "robustness":
         effects = (ROBUST_EFFECTS if a.effects == "all" else () if a.effects == "none"
                    else tuple(e.strip() for e in a.effects.split(",") if e.strip()))
-        out = robustness(a.sets, effects, a.seed, a.workers, a.record)
+        only = [int(x) for x in a.only.split(",")] if a.only else None
+        out = robustness(a.sets, effects, a.seed, a.workers, a.record, only)
     else:
         out = speed([int(x) for x in a.runs.split(",")], a.steps, a.coating)
     if a.json:

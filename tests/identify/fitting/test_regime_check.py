@@ -13,7 +13,7 @@ from identify.diagnosis.rounds import DiagnosisOptions, diagnose
 from identify.diagnosis.where import Misfit, with_regime
 from identify.fitting.regime_check import MISMATCH_Z, RegimeRun, regime_check
 
-DATA = Path(__file__).resolve().parents[2] / "data" / "FOTAS"
+DATA = Path(__file__).resolve().parents[3] / "data" / "FOTAS"
 OPTS = identify.FitOptions(fixed={"v_stick": 1e-5})
 MODEL = Model(get_law("exponential"))
 TRUTH = {**parameter_set("FOTAS"), "A": 0.015, "v_stick": 1e-5}

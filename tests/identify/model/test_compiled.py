@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 # a plain Function (compiled whole) and an integrator (CasADi JITs its dependencies and
 # writes that C file to the cwd): the two ways identify uses compiled()

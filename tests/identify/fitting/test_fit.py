@@ -1986,7 +1986,7 @@ def test_spread_starts_cover_each_parameter_range_once_per_stratum(small_traces)
     """A Latin hypercube: with n starts, each free parameter's range (a decade either side
     for log-scaled ones, ±40 % for the others) holds one start in each of its n strata;
     all inside the bounds; seeded."""
-    from identify.fitting.driver import _at_bound, _spread_starts
+    from identify.fitting.driver import _at_bound, _spread_ranges, _spread_starts
 
     runs, _, coating = prepare_runs(small_traces)
     model = Model(get_law("exponential"))
@@ -1999,11 +1999,22 @@ def test_spread_starts_cover_each_parameter_range_once_per_stratum(small_traces)
     assert all(np.array_equal(a, b) for a, b in zip(starts, again))
     tm, k = prob.theta, prob.n_theta
     th = np.array([w[:k] for w in starts])
+    lo, hi = _spread_ranges(prob, w0)
     half = np.where(tm.log, np.log(10.0), 0.4 * np.maximum(np.abs(w0[:k]), 1e-3))
-    strata = np.floor((th - (w0[:k] - half)) / (2 * half) * n).astype(int)
+    # (τ's range reaches over the data's rests too, which here lie within its decades)
+    assert np.all(lo <= w0[:k] - half + 1e-9) and np.all(hi >= np.minimum(w0[:k] + half, tm.hi - 1e-9) - 1e-9)
+    strata = np.floor((th - lo) / (hi - lo) * n).astype(int)
     for j in range(k):
         assert sorted(strata[:, j]) == list(range(n)), tm.names[j]
     assert np.all(th >= tm.lo) and np.all(th <= tm.hi)
+    # a parameter collapsed onto its bound is searched around the preset as well, and τ
+    # over the data's rests: a suspect τ of 0.1 ms still gets starts at the rests' scale
+    w_bad = w0.copy()
+    j = tm.names.index("tau")
+    w_bad[j] = np.log(1e-4 / tm.scale[j])
+    lo_bad, hi_bad = _spread_ranges(prob, w_bad, preset=values)
+    rests = np.concatenate([np.diff(r.trigger_steps) / r.fp for r in prob.runs])
+    assert np.exp(hi_bad[j]) * tm.scale[j] >= max(3 * rests.max(), 10 * values["tau"]) * 0.999
     assert _at_bound(prob, dict(f=1.0, w=w0)) == ""
     w_lo = w0.copy()
     w_lo[tm.names.index("A")] = tm.lo[tm.names.index("A")]

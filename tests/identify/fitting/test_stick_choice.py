@@ -13,7 +13,7 @@ from identify import FitOptions, SimulationOptions, fit, simulate
 from identify.cli import main as cli_main
 from identify.fitting.driver import FitError
 
-DATA = Path(__file__).resolve().parents[2] / "data" / "FOTAS"
+DATA = Path(__file__).resolve().parents[3] / "data" / "FOTAS"
 # two bundled runs the model as written creeps in (their data stick-slip), one it does not
 CREEPING = ["FOTAS_k2.13_Nb5uN_fp100Hz", "FOTAS_k20.3_Nb30uN_fp100Hz"]
 AGREEING = ["FOTAS_k20.3_Nb30uN_fp30Hz"]
@@ -107,7 +107,7 @@ def test_auto_chooses_by_likelihood_where_the_regimes_do_not_tell():
     (measured: χ² 6453.60, the truth-started fit's, 135 s)."""
     import sys as _sys
 
-    _sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    _sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
     import bench_fit
 
     truth, traces = bench_fit._clean_set(2, 0)

@@ -15,7 +15,7 @@ from identify.diagnosis.rounds import DiagnosisOptions, diagnose
 from identify.diagnosis.where import misfit_sigma, where
 from identify.model.effects import get_effect
 
-DATA = Path(__file__).resolve().parents[2] / "data" / "FOTAS"
+DATA = Path(__file__).resolve().parents[3] / "data" / "FOTAS"
 SMALL = [DATA / f"FOTAS_{n}.csv" for n in ("k2.13_Nb5uN_fp100Hz", "k2.13_Nb5uN_fp30Hz", "k20.3_Nb60uN_fp100Hz",
                                            "k2.13_Nb10uN_fp100Hz")]
 OPTS = identify.FitOptions(fixed={"v_stick": 1e-5})

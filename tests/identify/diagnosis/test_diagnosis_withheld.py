@@ -18,7 +18,7 @@ from identify.simulation.withheld import CONDITIONS, withheld_dataset
 
 pytestmark = pytest.mark.slow
 
-DATA = Path(__file__).resolve().parents[2] / "data" / "FOTAS"
+DATA = Path(__file__).resolve().parents[3] / "data" / "FOTAS"
 BASE = identify.FitOptions(fixed={"v_stick": 1e-5})
 NO_A = identify.FitOptions(fixed={"v_stick": 1e-5, "A": 0.0}, free=("mu_max", "mu_min", "tau"))
 
