@@ -92,6 +92,9 @@ def _add_simulate(sub):
                    help="frame times (j + phase)/frame_rate; 0.5 = middle of each sub-interval")
     p.add_argument("--integrator", default="rosenbrock", choices=("rosenbrock", "idas"),
                    help="engine for moving phases (see README)")
+    p.add_argument("--outside-platform-ranges", action="store_true",
+                   help="simulate conditions outside what the platform can do (refused otherwise, as a likely "
+                   "unit slip); the trace says so in its metadata")
     p.add_argument("--out", required=True, metavar="DIR/NAME", help="output stem of the trace files")
     p.add_argument("--plot", action="store_true", help="also write DIR/NAME_fig13.png/.pdf (paper's Fig. 13)")
     p.add_argument("--json", metavar="SUMMARY.json", help="write a JSON summary of the run")
@@ -112,6 +115,7 @@ def _cmd_simulate(args) -> int:
             normal_load_uN=args.normal_load_uN, block_voltage_V=args.block_voltage_V,
             step_frequency_Hz=args.fp, travel_um=args.travel_um, law=args.law, params=params,
             stick_speed_m_per_s=args.stick_speed, options=SimulationOptions(integrator=args.integrator),
+            check_platform=not args.outside_platform_ranges,
         )
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
@@ -199,8 +203,11 @@ def _cmd_analyze(args) -> int:
     if args.plots:
         paths = res.save_plots(args.plots)
         print(f"wrote {len(paths)} figure(s) to {args.plots}")
-    # non-zero only when nothing at all could be analysed
-    return 0 if any(ra.events is not None for ra in res.runs) else 1
+    if not any(ra.events is not None for ra in res.runs):
+        # (the report above says why each run was refused; nothing else is wrong)
+        print("error: no run could be analysed (each run's reason is listed above)", file=sys.stderr)
+        return 2
+    return 0
 
 
 # ----------------------------------------------------------------------------- fit

@@ -41,6 +41,7 @@ import numpy as np
 
 from identify.model.laws import get_law
 from identify.model.params import ParameterError, normal_load_from_voltage, parameter_set, validate_parameters
+from identify.model.plausible import platform_problem
 from identify.model.symbolic import LENGTH_UNIT, N_STATES, SPEED_UNIT, TIME_UNIT, Model, slip_integrator, slip_rhs
 
 __all__ = [
@@ -906,6 +907,7 @@ def simulate(
     initial_state: float | None = None,
     first_step_time_s: float | None = None,
     options: SimulationOptions | None = None,
+    check_platform: bool = True,
 ) -> SimulationResult:
     """Simulate one run of the platform.
 
@@ -934,6 +936,10 @@ def simulate(
     first_step_time_s : float, optional
         Time of the first step (default 1/fp).
     options : SimulationOptions
+    check_platform : bool
+        Refuse conditions outside what the platform can do
+        (:data:`identify.model.plausible.PLATFORM_RANGES`), naming the likely unit slip;
+        False simulates them anyway.
 
     Returns
     -------
@@ -948,6 +954,11 @@ def simulate(
         Nb = nb * 1e-6
     else:
         Nb = normal_load_from_voltage(block_voltage_V)
+    if check_platform:
+        for name, value in (("normal_load_uN", Nb * 1e6), ("spring_constant_N_per_m", spring_constant_N_per_m),
+                            ("step_frequency_Hz", step_frequency_Hz)):
+            if (problem := platform_problem(name, float(value))) is not None:
+                raise ParameterError(problem)
     overrides = dict(params or {})
     if stick_speed_m_per_s is not None:
         overrides["v_stick"] = stick_speed_m_per_s

@@ -26,6 +26,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from identify.model.params import SPECS, ParameterError, normal_load_from_voltage
+from identify.model.plausible import PLATFORM_RANGES, platform_problem
 
 __all__ = [
     "FORMAT",
@@ -280,6 +281,13 @@ def _check_metadata(meta: Mapping[str, Any], path: str | Path, text: str | None 
         v = meta.get(key)
         if v is not None and not isinstance(v, str):
             fail(key, f"{key} = {v!r}: must be text")
+    outside = meta.get("outside_platform_ranges", False)
+    if not isinstance(outside, bool):
+        fail("outside_platform_ranges", f"outside_platform_ranges = {outside!r}: must be true or false")
+    if not outside:
+        for key in PLATFORM_RANGES:
+            if key in meta and (problem := platform_problem(key, float(meta[key]))):
+                fail(key, problem)
 
 
 def _parse_json(path: Path) -> dict:
@@ -614,6 +622,8 @@ class Trace:
                 "initial_elongation_m": float(c.initial_elongation),
             },
         }
+        if any(platform_problem(k, float(meta[k])) for k in PLATFORM_RANGES if meta.get(k) is not None):
+            meta["outside_platform_ranges"] = True  # (simulated so on purpose: readable again)
         meta.update(extra or {})
         meta = {k: v for k, v in meta.items() if v is not None}
         return cls(name=name, time_s=t, elongation=elongation_m, puller=None, metadata=meta)
