@@ -54,9 +54,10 @@ PLATFORM_RANGES = {
 def platform_problem(name: str, value: float) -> str | None:
     """Why ``value`` of the condition ``name`` (a key of :data:`PLATFORM_RANGES`, in its
     field's unit) lies outside what the platform can do, with the likely unit slip; None
-    when it lies inside or ``name`` has no range."""
+    when it lies inside or ``name`` has no range (a value that is not a positive number is
+    left to the rule that it must be one)."""
     r = PLATFORM_RANGES.get(name)
-    if r is None or not math.isfinite(value) or r.lo <= value <= r.hi:
+    if r is None or not math.isfinite(value) or value <= 0 or r.lo <= value <= r.hi:
         return None
     hint = r.hint(value)
     return (f"{name} = {value:g} {r.unit} lies outside what the platform can do, {r.lo:g} to {r.hi:g} {r.unit} "
