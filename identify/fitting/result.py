@@ -11,6 +11,7 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -41,6 +42,16 @@ REFINE_STEPS = 3  # bisections of the bracket where a profile crosses the 95 % t
 BETTER_TOL = 0.1
 
 
+def _num(x) -> float:
+    """A JSON number back to a float (strict JSON writes a non-finite one as null)."""
+    return float("nan") if x is None else float(x)
+
+
+def _pair(x):
+    """A JSON two-list back to the tuple it was (None stays None)."""
+    return None if x is None else tuple(x)
+
+
 @dataclass
 class ParameterEstimate:
     """One parameter: value (SI) ± stderr, 95 % interval, whether it was free."""
@@ -63,6 +74,12 @@ class ParameterEstimate:
                     ci95=list(self.ci95) if self.ci95 is not None else None,
                     ci95_profile=list(self.ci95_profile) if self.ci95_profile is not None else None,
                     free=self.free, unit=self.unit, init=self.init, flag=self.flag, true=self.true)
+
+    @classmethod
+    def from_json(cls, name: str, d: dict) -> ParameterEstimate:
+        return cls(name=name, value=_num(d["value"]), stderr=d.get("stderr"),
+                   ci95=_pair(d.get("ci95")), free=bool(d["free"]), unit=d.get("unit", "-"), init=d.get("init"),
+                   flag=d.get("flag"), true=d.get("true"), ci95_profile=_pair(d.get("ci95_profile")))
 
 
 @dataclass
@@ -110,6 +127,15 @@ class Profile:
                     undetermined=self.undetermined, failed=np.asarray(self.failed).tolist(),
                     better=list(self.better) if self.better else None,
                     reach=list(self.reach) if self.reach else None)
+
+    @classmethod
+    def from_json(cls, d: dict) -> Profile:
+        und = d.get("undetermined")
+        return cls(name=d["name"], values=np.array(d["values"], float), delta_chi2=np.array(d["delta_chi2"], float),
+                   ci95=_pair(d.get("ci95")), flat=bool(d["flat"]), threshold=float(d["threshold"]),
+                   open_below=und in ("below", "both"), open_above=und in ("above", "both"),
+                   failed=np.array(d.get("failed") or [], float), reach=_pair(d.get("reach")),
+                   better=_pair(d.get("better")))
 
     def plot(self, ax=None):
         from identify.plots.fit import plot_profile
@@ -192,8 +218,7 @@ class FitResult:
         """Standard errors and 95 % intervals of the free parameters under another
         covariance than the fit's option (``robust``, ``cluster`` or ``model``, see
         :class:`FitOptions`): name -> {stderr, ci95}. The fit itself is unchanged."""
-        if self.problem is None or self.w is None:
-            raise ValueError("uncertainty: this result carries no problem (read from JSON?)")
+        self._needs_problem("uncertainty")
         prob, w = self.problem, self.w
         th = w[: prob.n_theta]
         C, scale = _covariance(prob, w, covariance, self.redchi)
@@ -319,12 +344,53 @@ class FitResult:
             multistart=self.multistart, runs=self.runs, timing=self.timing, start=self.start_source,
             profiles={n: p.to_json() for n, p in self.profiles.items()},
             concerns=self.concerns,
+            covariance=None if self.covariance is None else np.asarray(self.covariance).tolist(),
         )
+
+    to_dict = to_json
+
+    @classmethod
+    def from_dict(cls, d: dict) -> FitResult:
+        """The result :meth:`to_dict` (or ``fit.json``) describes: everything its report,
+        JSON and concerns show. It carries no problem, so what needs the fitted NLP
+        (:meth:`profile`, :meth:`uncertainty`, :meth:`save_plots`) asks for a refit."""
+        cov = d.get("covariance")
+        return cls(
+            parameters={n: ParameterEstimate.from_json(n, p) for n, p in d["parameters"].items()},
+            correlation=d.get("correlation", {}),
+            covariance=None if cov is None else np.array(cov, float),
+            chi2=_num(d["chi2"]), dof=int(d["dof"]), redchi=_num(d["redchi"]), aic=_num(d["aic"]),
+            bic=_num(d["bic"]), cost=_num(d["cost"]), law=d["law"], coating=d["coating"], n_runs=int(d["n_runs"]),
+            n_events=int(d["n_events"]), n_observations=int(d["n_observations"]), nlp_size=d.get("nlp_size", {}),
+            solver=d.get("solver", {}), multistart=d.get("multistart", {}), runs=d.get("runs", []),
+            timing=d.get("timing", {}), start_source=d.get("start", ""),
+            profiles={n: Profile.from_json(p) for n, p in (d.get("profiles") or {}).items()},
+        )
+
+    def save(self, path) -> Path:
+        """Write :meth:`to_dict` as strict JSON (non-finite numbers as null)."""
+        from identify.jsonio import write_json
+
+        return write_json(path, self.to_dict())
+
+    @classmethod
+    def load(cls, path) -> FitResult:
+        """A result saved by :meth:`save` (or ``identify fit --json``)."""
+        import json
+
+        with open(path, encoding="utf-8") as fh:
+            return cls.from_dict(json.load(fh))
+
+    def _needs_problem(self, what: str) -> None:
+        if self.problem is None or self.w is None:
+            raise ValueError(f"{what}: this result carries no fitted problem (read from JSON?): "
+                             "fit the data again to compute it")
 
     # ---------------------------------------------------------------- more work
     def profile(self, name: str, n_points: int = 13, span: float = 4.0, progress=None) -> Profile:
         """Profile likelihood of ``name`` (a free parameter). The result is unchanged:
         :meth:`with_profiles` gives a result that carries the profile."""
+        self._needs_problem("profile")
         return profile(self, name, n_points=n_points, span=span, progress=progress)
 
     def with_profiles(self, *profiles: Profile) -> FitResult:
@@ -356,6 +422,7 @@ class FitResult:
         from identify.fitting.rundata import plateaus_from_triggers
         from identify.model.symbolic import LENGTH_UNIT
 
+        self._needs_problem("model_elongation")
         prob, w = self.problem, self.w
         rd = prob.runs[i_run]
         ev = rd.events
@@ -372,6 +439,7 @@ class FitResult:
     def save_plots(self, folder) -> list:
         from identify.plots.fit import save_fit_plots
 
+        self._needs_problem("save_plots")
         return save_fit_plots(self, folder)
 
 

@@ -2019,3 +2019,21 @@ def test_spread_starts_cover_each_parameter_range_once_per_stratum(small_traces)
     w_lo = w0.copy()
     w_lo[tm.names.index("A")] = tm.lo[tm.names.index("A")]
     assert _at_bound(prob, dict(f=1.0, w=w_lo)) == "A at a bound"
+
+
+def test_a_saved_fit_loads_back_with_the_same_report(small_fit, tmp_path, strict_json):
+    """``save``/``load`` (and ``to_dict``/``from_dict``) round-trip through strict JSON:
+    the loaded result prints the same report and concerns; what needs the fitted problem
+    says so instead of failing obscurely."""
+    from identify.fitting.result import FitResult
+
+    path = small_fit.save(tmp_path / "fit.json")
+    strict_json(path)
+    back = FitResult.load(path)
+    assert back.report() == small_fit.report()
+    assert back.concerns == small_fit.concerns and back.values == small_fit.values
+    np.testing.assert_allclose(back.covariance, small_fit.covariance)
+    assert FitResult.from_dict(small_fit.to_dict()).to_dict() == small_fit.to_dict()
+    for call in (lambda: back.profile("tau"), lambda: back.save_plots(tmp_path), lambda: back.uncertainty("model")):
+        with pytest.raises(ValueError, match="no fitted problem"):
+            call()
