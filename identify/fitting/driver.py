@@ -929,7 +929,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         other = (start_given, "the start before staging", "unstaged")
     elif staged is not None and staged != start_given:
         other = (staged, "the staged start it rejected", "staged")
-    why = _suspect(prob, best) if other is not None else ""
+    why = (_suspect(prob, best) or _improbable(prob, best)) if other is not None else ""
     if why:
         solve_from(prob.initial_w(other[0]), f"the fit looks wrong ({why}); again from {other[1]}")
         better = results[-1]["f"] < best["f"]
