@@ -722,6 +722,37 @@ spread starts too: with thousands of frames a local minimum can sit at reduced �
 several standard deviations of χ² above the truth's basin, and look converged."""
 
 
+RIVAL_DCHI2 = 3.84
+"""χ² within which another converged solution is as good as the best (the 95 % point of
+χ² with one degree of freedom): where it puts a parameter outside the best's interval,
+the interval describes one of several minima, not the data's whole answer."""
+
+
+def _flag_rivals(result, prob, best: dict, rivals: list) -> None:
+    """Flag each free parameter that a rival solution (a converged spread start of the same
+    problem, its χ² within :data:`RIVAL_DCHI2` of the best) puts outside the best's 95 %
+    interval, with the rival's value; the result's ``multistart`` says whether the best
+    point is unique."""
+    tm, k = prob.theta, prob.n_theta
+    found = {}
+    for r in rivals:
+        if r is best or 2 * (r["f"] - best["f"]) > RIVAL_DCHI2:
+            continue
+        vals = np.atleast_1d(tm.from_scaled(np.asarray(r["w"][:k], float)))
+        for n, v in zip(tm.names, vals):
+            p = result.parameters.get(n)
+            if p is None or p.ci95 is None or p.ci95[0] <= v <= p.ci95[1]:
+                continue
+            if n not in found or abs(v - p.value) > abs(found[n][0] - p.value):
+                found[n] = (float(v), 2 * (r["f"] - best["f"]))
+    result.multistart["unique"] = not found
+    for n, (v, d) in found.items():
+        p = result.parameters[n]
+        text = (f"not unique: another converged solution, chi-square {d:+.2f} from the best, puts it at {v:.4g}, "
+                "outside this interval (a profile, result.profile, maps the valley)")
+        p.flag = f"{p.flag}; {text}" if p.flag else text
+
+
 def _improbable(prob, res) -> str:
     """Why a converged solution's χ² is unlikely under the noise the data claim ('' if
     it is not): above the upper :data:`SPREAD_P` quantile of χ² with the fit's degrees of
@@ -947,6 +978,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     # over the plausible range, so that the answer is the best of several basins rather
     # than the first one reached
     why = _suspect(prob, best) or _at_bound(prob, best) or _improbable(prob, best)
+    rivals = []  # converged solutions of the final problem, for the uniqueness check
     if why and opts.auto_starts:
         auto = _spread_starts(prob, best["w"], opts.auto_starts,
                               np.random.default_rng(opts.seed if opts.seed is not None else AUTO_SEED), preset)
@@ -954,6 +986,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         for i, w in enumerate(auto):
             # (the problem now carries the decided sequence: solved to the full tolerance)
             solve_from(w, f"the fit looks wrong ({why}); spread start {i + 1} of {len(auto)}", loose=False)
+        rivals = [r for r in results[n_before:] if r.get("success") and np.isfinite(r["f"])]
         new_best = min(results[n_before:], key=lambda r: r["f"])
         kept = new_best["f"] < best["f"] - SAME_SOLUTION_TOL
         start_source += (f" -> suspect ({why}), {len(auto)} spread starts: "
@@ -973,6 +1006,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,
                           time.perf_counter() - wall0)
     result.timing["sequence_s"] = float(t_seq)
+    _flag_rivals(result, prob, best, rivals)
     result.regime_runs = regime_runs
     _check_left_out(result, model, prob, say)
     # arcs the integrator could not finish at any tolerance: their trial points were

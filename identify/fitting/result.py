@@ -275,7 +275,10 @@ class FitResult:
         ms = self.multistart
         if ms.get("starts", 1) > 1:
             lines.append(f"    multistart         = best value found {ms['best_found']} of {ms['starts']} times "
-                         f"(½χ² within {SAME_SOLUTION_HALF_CHI2:g} of the best)")
+                         f"(½χ² within {SAME_SOLUTION_HALF_CHI2:g} of the best)"
+                         + {True: "; the best point is unique among the spread starts",
+                            False: "; NOT unique: another solution as good lies elsewhere (flagged below)"}
+                         .get(ms.get("unique"), ""))
         lines.append("[[Variables]]")
         width = max(len(n) for n in self.parameters)
         for n, p in self.parameters.items():

@@ -2037,3 +2037,31 @@ def test_a_saved_fit_loads_back_with_the_same_report(small_fit, tmp_path, strict
     for call in (lambda: back.profile("tau"), lambda: back.save_plots(tmp_path), lambda: back.uncertainty("model")):
         with pytest.raises(ValueError, match="no fitted problem"):
             call()
+
+
+def test_a_rival_solution_as_good_as_the_best_flags_what_it_moves(small_fit):
+    """Whether the best point is unique: a converged spread start within Δχ² 3.84 of the
+    best that puts a parameter outside the best's 95 % interval flags that parameter with
+    its value; one further off in χ², or inside the interval, does not."""
+    import dataclasses
+
+    from identify.fitting.driver import _flag_rivals
+
+    params = {n: dataclasses.replace(p) for n, p in small_fit.parameters.items()}
+    res = dataclasses.replace(small_fit, parameters=params, multistart=dict(small_fit.multistart))
+    prob, w = res.problem, res.w
+    best = dict(f=res.cost, w=w, success=True)
+    tm = prob.theta
+    j = tm.names.index("tau")
+    far = w.copy()
+    far[j] = tm.to_scaled({**res.values, "tau": res["tau"].ci95[1] * 1.5})[j]
+    near = w.copy()
+    near[j] = tm.to_scaled({**res.values, "tau": res["tau"].value * 1.0001})[j]
+    flags = {n: res[n].flag for n in tm.names}
+    _flag_rivals(res, prob, best, [dict(f=res.cost + 5.0, w=far, success=True), dict(f=res.cost, w=near, success=True)])
+    assert res.multistart["unique"] and {n: res[n].flag for n in tm.names} == flags
+    _flag_rivals(res, prob, best, [dict(f=res.cost + 1.0, w=far, success=True)])
+    assert res.multistart["unique"] is False
+    assert "not unique: another converged solution, chi-square +2.00" in res["tau"].flag
+    res.multistart.update(starts=5, best_found=1)  # (as the spread starts leave it)
+    assert "NOT unique" in res.report()
