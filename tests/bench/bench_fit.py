@@ -402,9 +402,10 @@ def _judge(traces, truth: dict, seed: int, check_intervals: bool) -> dict:
         p = res[n]
         inside = p.ci95 is not None and p.ci95[0] <= truth[n] <= p.ci95[1]
         if n == "mu_max" and alt and p.ci95 is not None:
-            # the flag names μmax under the other stick option: held if either interval holds it
+            # the flag names μmax under the other stick option, and a stick speed between the
+            # two gives a value between: held if the span of both intervals holds it
             shift = alt["mu_max"] - p.value
-            inside = inside or p.ci95[0] + shift <= truth[n] <= p.ci95[1] + shift
+            inside = min(p.ci95[0], p.ci95[0] + shift) <= truth[n] <= max(p.ci95[1], p.ci95[1] + shift)
             other_flags = [f for f in (p.flag or "").split("; ") if f and not f.startswith("depends on the stick")]
             held[n] = inside or bool(other_flags)
         else:
