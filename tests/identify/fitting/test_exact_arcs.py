@@ -175,7 +175,9 @@ def test_ipopt_stops_at_the_gauss_newton_test(scheme):
                                                            solver="ipopt", arc_jacobian=scheme))
     assert ip.solver["success"], ip.solver["status"]
     assert ip.solver["status"] in ("Solve_Succeeded", "Stalled_Within_Tolerance")
-    assert ip.solver["iterations"] < 40
+    # stopped by the test, not by its limit (measured: 7 to 66 iterations on the exact
+    # route from one process to the next, the rounding dependence the notes record)
+    assert ip.solver["iterations"] < FitOptions().max_iter
     assert "Ipopt" in ip.report()
     assert abs(ip.cost - gn.cost) < 0.01
     for n in ("mu_max", "mu_min", "tau", "A"):
