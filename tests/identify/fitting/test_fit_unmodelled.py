@@ -32,6 +32,11 @@ def test_the_default_fit_finds_the_best_the_model_can_do_on_data_with_an_unmodel
         ref = fit(traces, coating="FOTAS", options=FitOptions(
             fixed={"v_stick": 1e-5}, start=truth, staged_start=False, auto_starts=0))
     assert res.chi2 <= ref.chi2 + CHI2_SLACK, (effect, res.chi2, ref.chi2, res.start_source)
-    # a point the data put there, not a parameter collapsed onto a bound
+    # a point the data put there; where the unmodelled effect pushes a parameter onto its
+    # bound (measured with drift: A = 0, at the truth-started fit's χ² or below), the
+    # report says it is not a result to use as it stands, rather than hiding it
     assert all(np.isfinite(res[n].value) for n in FREE)
-    assert res["tau"].value > 1e-3 and res["A"].value > 1e-4, {n: res[n].value for n in FREE}
+    collapsed = [n for n in ("tau", "A") if res[n].value <= {"tau": 1e-3, "A": 1e-4}[n]]
+    for n in collapsed:
+        assert (res[n].flag or "").startswith("at a bound"), (n, res[n].value, res[n].flag)
+        assert any(n in c for c in res.concerns) and res.headline().startswith("!! NOT A RESULT TO USE")
