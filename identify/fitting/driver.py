@@ -753,6 +753,12 @@ def _flag_rivals(result, prob, best: dict, rivals: list) -> None:
         p.flag = f"{p.flag}; {text}" if p.flag else text
 
 
+def _chi2_dof(prob, res) -> tuple[float, int]:
+    """A solve's frame-level χ² (½χ² doubled, the compressed plateaus' constant added) and
+    the fit's degrees of freedom."""
+    return 2 * res["f"] + prob.chi2_constant(), prob.dof()
+
+
 def _improbable(prob, res) -> str:
     """Why a converged solution's χ² is unlikely under the noise the data claim ('' if
     it is not): above the upper :data:`SPREAD_P` quantile of χ² with the fit's degrees of
@@ -761,7 +767,7 @@ def _improbable(prob, res) -> str:
 
     if not np.isfinite(res["f"]) or prob.dof() <= 0:
         return ""
-    chi2, dof = 2 * res["f"] + prob.chi2_constant(), prob.dof()
+    chi2, dof = _chi2_dof(prob, res)
     limit = float(stats.chi2.isf(SPREAD_P, dof))
     return f"chi-square {chi2:.6g} above the noise's {100 * (1 - SPREAD_P):g}th percentile {limit:.6g}" \
         if chi2 > limit else ""
@@ -774,7 +780,7 @@ def _suspect(prob, res, noise_p: float | None = None) -> str:
     upper ``noise_p`` quantile of χ² with the fit's degrees of freedom."""
     if not np.isfinite(res["f"]):
         return "no solution"
-    chi2, dof = 2 * res["f"] + prob.chi2_constant(), prob.dof()
+    chi2, dof = _chi2_dof(prob, res)
     redchi = chi2 / dof
     if redchi > SUSPECT_REDCHI:
         return (f"solver: {res.get('status')}, " if not res.get("success") else "") + f"reduced χ² {redchi:.3g}"
