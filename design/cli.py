@@ -280,6 +280,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         msg = " ".join(str(exc).split())
         print(f"error: {msg}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:  # (128 + SIGINT, the shell's convention)
+        what = getattr(exc, "what", "") or "nothing saved"
+        print(f"interrupted: {what}", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from identify.executors import stop_pool
+from identify.interrupts import Interrupted
 from identify.jsonio import dumps
 
 __all__ = ["Candidate", "CRITERIA", "ExperimentPlan", "run_information", "run_information_parts", "run_problem",
@@ -609,22 +611,29 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
         fh = open(record, "a", encoding="utf-8")
         if cut:
             fh.write("\n")
+    ex = ProcessPoolExecutor(max_workers=max(int(workers), 1))
     try:
-        with ProcessPoolExecutor(max_workers=max(int(workers), 1)) as ex:
-            futs = {ex.submit(_fit_plan, runs_of[key], plan.coating, plan.free, noise_nm, stick_speed_m_per_s,
-                              seed + r, jitter_load): (key, r) for key, r in jobs}
-            for i, f in enumerate(as_completed(futs), 1):
-                key, r = futs[f]
-                try:
-                    row = dict(key=key, seed=seed + r, context=context[key], **f.result())
-                except Exception as err:  # a failed repeat is counted, not fatal (and retried on a rerun)
-                    row = dict(key=key, seed=seed + r, context=context[key], error=f"{type(err).__name__}: {err}")
-                    say(f"  {key.split('_')[0]} repeat {r + 1} failed: {err}")
-                rows[(key, seed + r)] = row
-                if fh is not None:
-                    fh.write(dumps(row, indent=None) + "\n")
-                    fh.flush()
-                say(f"verification: {i}/{len(jobs)} fits done")
+        futs = {ex.submit(_fit_plan, runs_of[key], plan.coating, plan.free, noise_nm, stick_speed_m_per_s,
+                          seed + r, jitter_load): (key, r) for key, r in jobs}
+        for i, f in enumerate(as_completed(futs), 1):
+            key, r = futs[f]
+            try:
+                row = dict(key=key, seed=seed + r, context=context[key], **f.result())
+            except Exception as err:  # a failed repeat is counted, not fatal (and retried on a rerun)
+                row = dict(key=key, seed=seed + r, context=context[key], error=f"{type(err).__name__}: {err}")
+                say(f"  {key.split('_')[0]} repeat {r + 1} failed: {err}")
+            rows[(key, seed + r)] = row
+            if fh is not None:
+                fh.write(dumps(row, indent=None) + "\n")
+                fh.flush()
+            say(f"verification: {i}/{len(jobs)} fits done")
+    except KeyboardInterrupt:
+        stop_pool(ex)
+        kept = f"; the {len(rows)} finished fit(s) are in {record}, and a rerun with it resumes" if record else ""
+        raise Interrupted(f"verification stopped after {len(rows)} of {len(runs_of) * repeats} fit(s){kept}",
+                          dict(record=str(record) if record else None, fits=len(rows))) from None
+    else:
+        ex.shutdown()
     finally:
         if fh is not None:
             fh.close()

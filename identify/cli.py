@@ -26,6 +26,7 @@ import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
+from identify import interrupts
 from identify.jsonio import write_json
 
 from . import __version__
@@ -292,16 +293,29 @@ def _run_fit(args, data, true_values=None) -> int:
     from identify.fitting.driver import fit
 
     opts = _fit_options(args)
-    res = fit(data, coating=args.coating, options=opts, true_values=true_values,
-              progress=lambda msg: print(f"[fit] {msg}", file=sys.stderr, flush=True))
+    profiles = [n.strip() for n in (args.profile or "").split(",") if n.strip()]
+    for name in profiles:  # (before the fit, not after it)
+        if name not in opts.free:
+            raise CLIError(f"--profile {name}: not a free parameter ({', '.join(opts.free)})")
+    try:
+        res = fit(data, coating=args.coating, options=opts, true_values=true_values,
+                  progress=lambda msg: print(f"[fit] {msg}", file=sys.stderr, flush=True))
+    except interrupts.Interrupted as err:
+        return _save_interrupted(err, Path(args.json).with_suffix(".interrupted.json") if args.json
+                                 else Path("fit.interrupted.json"))
     # the fit is saved before any optional extra work, so nothing computed is lost
     if args.json:
         print(f"wrote {write_json(args.json, res.to_json())}", file=sys.stderr)
-    for name in (n.strip() for n in (args.profile or "").split(",") if n.strip()):
-        if name not in res.free:
-            raise CLIError(f"--profile {name}: not a free parameter ({', '.join(res.free)})")
-        res = res.with_profiles(res.profile(name, progress=lambda msg: print(f"[fit] {msg}", file=sys.stderr,
-                                                                             flush=True)))
+    for name in profiles:
+        try:
+            with interrupts.honoured():
+                res = res.with_profiles(res.profile(name, progress=lambda msg: print(f"[fit] {msg}",
+                                                                                     file=sys.stderr, flush=True)))
+        except KeyboardInterrupt:
+            kept = f"the fit{' and the profiles before it' if name != profiles[0] else ''} in {args.json}" \
+                if args.json else "nothing (no --json)"
+            print(f"interrupted during the profile of {name}: saved {kept}", file=sys.stderr)
+            return 130
         if args.json:
             write_json(args.json, res.to_json())
     print(res.report())
@@ -313,6 +327,17 @@ def _run_fit(args, data, true_values=None) -> int:
               file=sys.stderr)
         return 3
     return 0
+
+
+def _save_interrupted(err, path: Path) -> int:
+    """Write what an interrupted fit reached (``err.saved``) to ``path``; one line says
+    what was saved; exit status 130 (128 + SIGINT, the shell's convention)."""
+    if not err.saved:
+        print(f"interrupted: nothing saved ({err.what})", file=sys.stderr)
+        return 130
+    write_json(path, {"interrupted": True, **err.saved})
+    print(f"interrupted: saved {err.what} to {path}", file=sys.stderr)
+    return 130
 
 
 def _cmd_fit(args) -> int:
@@ -374,6 +399,11 @@ def _add_diagnose(sub):
                    "held-out gap is above the tolerance (auto, default), always, or never")
     p.add_argument("--workers", type=int, default=2, help="local worker processes for the refits (default 2)")
     p.add_argument("--dask", default=None, metavar="ADDRESS", help="run the refits on a dask.distributed cluster")
+    p.add_argument("--record", default=None, metavar="FILE",
+                   help="keep the baseline fit and every finished refit here as they finish (default: the "
+                   "--json path with the suffix .record)")
+    p.add_argument("--resume", action="store_true",
+                   help="go on from the record of an interrupted diagnosis of the same data and options")
     p.set_defaults(func=_cmd_diagnose)
 
 
@@ -394,9 +424,16 @@ def _cmd_diagnose(args) -> int:
     folds = args.folds if args.folds == "loo" else _int_arg(args.folds, "--folds")
     dopts = DiagnosisOptions(effects=effects, folds=folds, alpha=args.alpha, max_effects=args.max_effects,
                              workers=args.workers, dask=args.dask, seed=args.seed or 0,
-                             resequence={"auto": "auto", "always": True, "never": False}[args.resequence])
+                             resequence={"auto": "auto", "always": True, "never": False}[args.resequence],
+                             record=args.record or str(Path(args.json).with_suffix(".record")), resume=args.resume)
     say = lambda msg: print(f"[diagnose] {msg}", file=sys.stderr, flush=True)  # noqa: E731
-    res = diagnose(args.data, coating=args.coating, fit_options=_fit_options(args), options=dopts, progress=say)
+    try:
+        res = diagnose(args.data, coating=args.coating, fit_options=_fit_options(args), options=dopts, progress=say)
+    except interrupts.Interrupted as err:
+        if err.saved and "record" in err.saved:
+            print(f"interrupted: saved {err.what}; run the same command with --resume to go on", file=sys.stderr)
+            return 130
+        return _save_interrupted(err, Path(args.json).with_suffix(".baseline.interrupted.json"))
     print(f"wrote {res.save_json(args.json)}", file=sys.stderr)
     print(res.report())
     if args.plots:
@@ -470,7 +507,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print("interrupted: nothing saved", file=sys.stderr)
         return 130
     except Exception as err:  # noqa: BLE001 - the last line of defence: no traceback on the terminal
         return _internal_error(err)

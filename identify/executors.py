@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 
-__all__ = ["InProcess", "make_executor"]
+from identify import interrupts
+
+__all__ = ["InProcess", "make_executor", "stop_pool"]
 
 
 class InProcess(cf.Executor):
@@ -44,4 +46,21 @@ def make_executor(workers: int = 1, dask: str | None = None):
     # parent's CasADi thread pools are joined between calls, so forking is safe here
     method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
     ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method))
-    return ex, ex.shutdown
+
+    def close():
+        if interrupts.pending():
+            stop_pool(ex)
+        else:
+            ex.shutdown()
+
+    return ex, close
+
+
+def stop_pool(ex: cf.ProcessPoolExecutor) -> None:
+    """Stop a process pool now, its running tasks with it: on an interrupt, a shutdown
+    that waits would wait for every running fit, minutes, and so would the interpreter's
+    exit (the finished results are in the caller's record already)."""
+    procs = list((getattr(ex, "_processes", None) or {}).values())  # (shutdown forgets them)
+    ex.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:
+        proc.terminate()

@@ -33,13 +33,14 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy import stats
 
+from identify import interrupts
 from identify.diagnosis.candidates import (
     GAVE_UP,
     GIVE_UP_MARGIN,
@@ -50,6 +51,7 @@ from identify.diagnosis.candidates import (
 )
 from identify.diagnosis.features import feature_values
 from identify.diagnosis.heldout import folds_of
+from identify.diagnosis.record import DiagnosisRecord, RecordedExecutor, inputs_digest
 from identify.diagnosis.regime_screen import moved_text, own_screen, parting, regime_screen, smallest_moves
 from identify.diagnosis.where import where, with_regime
 from identify.executors import make_executor
@@ -120,6 +122,12 @@ class DiagnosisOptions:
         fits as well, the data cannot exclude the effect, and the parameters that move to
         absorb it are reported as its partners (``confounded_with``). One more solve per
         such candidate, stopped as soon as the answer is known.
+    record : path, optional
+        A file that keeps the baseline fit and every refit as it finishes
+        (:mod:`identify.diagnosis.record`), so that an interrupted diagnosis can resume.
+    resume : bool
+        Take the baseline and every refit the ``record`` holds instead of computing them
+        again (the record must be for the same data and options: it says so if not).
     """
 
     effects: Any = "all"
@@ -133,6 +141,8 @@ class DiagnosisOptions:
     gap_tolerance: float = 1.5
     resequence: Any = "auto"
     magnitude_check: bool = True
+    record: str | None = None
+    resume: bool = False
 
     def __post_init__(self):
         ids = tuple(EFFECTS) if self.effects in ("all", None) else tuple(self.effects)
@@ -481,8 +491,52 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
         An existing baseline fit to diagnose (saves its fit).
     executor : concurrent.futures.Executor, optional
         Where the candidate refits run (default from ``options.workers`` / ``options.dask``).
+
+    Raises
+    ------
+    identify.interrupts.Interrupted
+        On Ctrl-C: with ``options.record``, everything finished is in the record (its
+        ``saved``: the record's path and the refits in it), and a diagnosis started again
+        with ``resume=True`` goes on from there.
     """
     opts = options or DiagnosisOptions()
+    record = None
+    if opts.record:
+        given = baseline.problem.opts if baseline is not None else (fit_options or FitOptions())
+        inputs = inputs_digest(data if baseline is None else [], coating, given,
+                               replace(opts, workers=1, dask=None, record=None, resume=False))
+        record = DiagnosisRecord(opts.record, inputs, resume=opts.resume)
+        if baseline is None:
+            baseline = record.restored_baseline()
+            if baseline is not None:
+                (progress or log.info)(f"baseline fit from the record {record.path}")
+    own, closer = (executor, None) if executor is not None else make_executor(opts.workers, opts.dask)
+    if record is not None:
+        own = RecordedExecutor(own, record)
+    with interrupts.honoured():
+        try:
+            res = _diagnose(data, coating=coating, fit_options=fit_options, options=opts, baseline=baseline,
+                            executor=own, progress=progress, record=record)
+        except KeyboardInterrupt as err:
+            if record is None:
+                raise
+            n = len(record.results)
+            where = "the baseline fit and " if record.baseline is not None else ""
+            raise interrupts.Interrupted(f"{where}{n} finished refit(s) in the record {record.path} (resume goes on "
+                                         "from there)", dict(record=str(record.path), refits=n,
+                                                             baseline=record.baseline is not None)) from err
+        finally:
+            if closer is not None:
+                closer()
+            if record is not None:
+                record.close()
+    if record is not None:
+        res.timing["refits_from_record"] = record.resumed
+    return res
+
+
+def _diagnose(data, *, coating, fit_options, options, baseline, executor, progress, record) -> DiagnosisResult:
+    opts = options
     fopts = fit_options or FitOptions()
     say = progress or (lambda m: log.info(m))
     t0 = time.perf_counter()
@@ -496,6 +550,8 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
         say("baseline fit")
         try:
             baseline = fit(data, coating=coating, options=fopts, progress=say)
+            if record is not None:
+                record.keep_baseline(baseline)
         except FitError as err:
             if not err.excluded or not all(REGIME_MISMATCH in why for _, why in err.excluded):
                 raise

@@ -31,6 +31,7 @@ import functools
 import casadi as ca
 import numpy as np
 
+from identify import interrupts
 from identify.model.compiled import compiled
 from identify.model.symbolic import LENGTH_UNIT, SPEED_UNIT, TIME_UNIT, Model, arc_dae, transition
 
@@ -238,8 +239,10 @@ class ArcFunctions:
         try:
             return np.array(_mapped(f, A.shape[1], threads)(A))
         except RuntimeError:
+            interrupts.check()  # (CasADi hands an interrupt on as a RuntimeError)
             out = np.full((len(ARC_OUTPUTS), A.shape[1]), np.nan)
             for j in range(A.shape[1]):
+                interrupts.check()
                 try:
                     out[:, j] = np.array(f(A[:, j])).ravel()
                 except RuntimeError as err:

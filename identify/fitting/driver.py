@@ -18,6 +18,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from identify import interrupts
+from identify.fitting import best_so_far
 from identify.fitting.arcs import ARC_ABSTOL, ARC_RELTOL
 from identify.fitting.missed import missed_slips
 from identify.fitting.problem import Problem
@@ -817,7 +819,22 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     ------
     FitError
         When no run can be used or every solver start fails.
+    identify.interrupts.Interrupted
+        On Ctrl-C (a ``KeyboardInterrupt``): its ``saved`` holds the best point reached
+        so far (parameters, χ², the solver's status), or None if no solve had begun.
     """
+    with interrupts.honoured(), best_so_far.watching() as seen:
+        try:
+            return _fit(data, coating=coating, options=options, true_values=true_values, progress=progress)
+        except interrupts.Interrupted:
+            raise
+        except KeyboardInterrupt as err:
+            saved = seen.saved()
+            what = f"{saved['what']}, at chi-square {saved['chi2']:.6g}," if saved else "no solve had begun"
+            raise interrupts.Interrupted(what, saved) from err
+
+
+def _fit(data, *, coating, options, true_values, progress):
     from identify.fitting.result import build_result
 
     final_opts = options or FitOptions()

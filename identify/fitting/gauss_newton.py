@@ -12,6 +12,7 @@ from collections.abc import Mapping
 import numpy as np
 import scipy.sparse as sp
 
+from identify import interrupts
 from identify.fitting.arcs import SHARE_FEAS, SOLVE_REL_STEP
 from identify.fitting.convergence import (
     FEAS_TOL,
@@ -81,6 +82,9 @@ class GaussNewtonSQP:
     # the same kind of callback, asked wherever give_up is not (away from continuity, or
     # when there is no give_up): a stop only when decisive
     give_up_far = None
+    # (w, ½χ², largest constraint violation µm) where the solve in progress stands: what an
+    # interrupted fit can still hand back
+    last_iterate = None
     _loose = False  # the solve in progress stops at LOOSE_STAT_TOL, LOOSE_FEAS_TOL (solve(loose=True))
 
     def accurate_differences(self, res: dict, fixed: Mapping[int, float] | None = None) -> dict:
@@ -211,6 +215,8 @@ class GaussNewtonSQP:
         own_check, trusted = False, False  # (shared steps trusted far out: see SHARE_FEAS)
         r, g = self.evaluate(w)
         for it in range(1, opts.max_iter + 1):
+            interrupts.check()
+            self.last_iterate = (w, 0.5 * float(r @ r), float(np.abs(g).max()) if g.size else 0.0)
             if may_share:  # (SHARE_FEAS, per arc)
                 self.jacobian_scheme("forward", SOLVE_REL_STEP, share=self.near_continuity(g))
             r, g, Jr, Jg = self.evaluate(w, jac=True)

@@ -17,6 +17,7 @@ import weakref
 import casadi as ca
 import numpy as np
 
+from identify import interrupts
 from identify.fitting.convergence import (
     FEAS_TOL,
     LOOSE_FEAS_TOL,
@@ -105,6 +106,15 @@ class _IpoptConvergence(ca.Callback):
         return ca.Sparsity.dense(size, 1)
 
     def eval(self, arg):
+        if interrupts.pending():
+            return [1]  # (Ipopt stops, User_Requested_Stop; the solve's caller raises the interrupt)
+        try:
+            return self._eval(arg)
+        except KeyboardInterrupt:
+            interrupts.note()
+            return [1]
+
+    def _eval(self, arg):
         w = np.array(arg[0], float).ravel()
         try:
             r, g, Jr, Jg = self.problem.evaluate(w, jac=True)
@@ -113,6 +123,7 @@ class _IpoptConvergence(ca.Callback):
         if not (np.all(np.isfinite(r)) and np.all(np.isfinite(g))):
             return [0]
         feas = float(np.abs(g).max()) if g.size else 0.0
+        self.problem.last_iterate = (w, 0.5 * float(r @ r), feas)
         if feas >= self.feas_tol:
             log.debug("Ipopt iterate: |g| %.2e", feas)
             return [0]
@@ -179,6 +190,7 @@ class IpoptSolver:
         t0 = time.perf_counter()
         mark = self._ipopt_log.mark()
         sol = self.ipopt(x0=np.clip(w0, lbx, ubx), lbx=lbx, ubx=ubx, lbg=0, ubg=0)
+        interrupts.check()  # (Ipopt stopped on the interrupt its callback saw)
         st = self.ipopt.stats()
         restoration = self._ipopt_log.restoration_iterations(mark)
         status = st.get("return_status", "?")

@@ -53,6 +53,8 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from identify import interrupts
+from identify.fitting import best_so_far
 from identify.fitting.arcs import SHARE_FEAS, SHARE_TOL, SOLVE_REL_STEP, ArcFunctions, arc_functions, share_groups
 from identify.fitting.covariance import Covariance
 from identify.fitting.exact_arcs import exact_arcs
@@ -181,6 +183,14 @@ class _ArcCallback(ca.Callback):
         return ca.Function(name, [A, out], [ca.mtimes(S, JA)], inames, onames, opts)
 
     def eval(self, arg):
+        try:
+            return self._eval(arg)
+        except KeyboardInterrupt:
+            interrupts.note()  # (CasADi hands it on as a RuntimeError: see identify.interrupts)
+            raise
+
+    def _eval(self, arg):
+        interrupts.check()
         A = np.array(arg[0])
         key = A.tobytes()
         if key != self._key:
@@ -533,11 +543,16 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement):
     def evaluate(self, w, jac: bool = False):
         """(r, g) or (r, g, Jr, Jg) at w; an arc that cannot be integrated at a trial point
         gives non-finite values (the point is rejected, the fit goes on)."""
-        r = np.array(self._r_fun(w)).ravel()
-        g = np.array(self._g_fun(w)).ravel()
-        if not jac:
-            return r, g
-        return r, g, _to_csc(self._jr_fun(w), self.n_w), _to_csc(self._jg_fun(w), self.n_w)
+        interrupts.check()
+        try:
+            r = np.array(self._r_fun(w)).ravel()
+            g = np.array(self._g_fun(w)).ravel()
+            if not jac:
+                return r, g
+            return r, g, _to_csc(self._jr_fun(w), self.n_w), _to_csc(self._jg_fun(w), self.n_w)
+        except RuntimeError:
+            interrupts.check()  # (an interrupt inside the arcs' callback comes out as a RuntimeError)
+            raise
 
     def residuals(self, w) -> np.ndarray:
         return self.evaluate(w)[0]
@@ -606,6 +621,12 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement):
         """Solve from ``w0`` (the Gauss–Newton SQP, or Ipopt). ``loose``: to the
         tolerances a mode-sequence decision needs (``LOOSE_STAT_TOL``, ``LOOSE_FEAS_TOL``),
         for a solution that only decides the next sequence; the result says ``loose``."""
+        best_so_far.solving(self)
+        res = self._solve(w0, fixed, loose)
+        best_so_far.solved(self, res)
+        return res
+
+    def _solve(self, w0, fixed, loose):
         self.jacobian_scheme(self.opts.arc_jacobian, SOLVE_REL_STEP)
         if self.opts.solver == "ipopt":
             return self.solve_ipopt(w0, fixed, loose)
