@@ -222,6 +222,9 @@ def _add_fit_arguments(p, json_required: bool):
     p.add_argument("--bound", action="append", metavar="NAME=LO:HI", help="bounds of a free parameter")
     p.add_argument("--start", action="append", metavar="NAME=VALUE", help="start value of a free parameter")
     p.add_argument("--free-offset", action="store_true", help="estimate a per-run elongation zero offset")
+    p.add_argument("--outside-platform-ranges", action="store_true",
+                   help="take --fix and --start values outside what a contact on the platform can plausibly have "
+                   "(refused otherwise, as a likely unit slip: tau=67.4 is ms typed for s)")
     p.add_argument("--stick-speed", default="check", metavar="check|auto|off|M_PER_S",
                    help="the stick option: a speed in m/s fixes v_stick (as --fix v_stick=...); otherwise "
                         "'check' (default) stops at once where the equations as written creep but the data "
@@ -271,6 +274,7 @@ def _fit_options(args):
                       bounds=_parse_bounds(args.bound), start=_parse_params(args.start, "--start"),
                       free_offset=args.free_offset, multistart=args.multistart, seed=args.seed,
                       solver=args.solver, trigger=args.trigger, stick_speed=stick,
+                      check_platform=not getattr(args, "outside_platform_ranges", False),
                       **({} if args.sequence_trials is None else {"sequence_trials": args.sequence_trials}))
 
 

@@ -28,6 +28,7 @@ from identify.fitting.rundata import RunData, make_run_data
 from identify.fitting.sequence import ambiguous_triggers, batch_triggers, excess_chi2, misfit_triggers, with_triggers
 from identify.model.laws import get_law
 from identify.model.params import parameter_set, spec
+from identify.model.plausible import check_parameters
 from identify.model.symbolic import Model
 
 __all__ = ["FitOptions", "fit", "FitError", "RunData", "prepare_runs", "decide_sequence"]
@@ -111,6 +112,10 @@ class FitOptions:
         the others; τ also over the data's rest times), a Latin hypercube seeded by
         ``seed``; the best solution is kept and the report's start line says so. 0 turns
         it off.
+    check_platform : bool
+        Refuse fixed and start values outside what a contact on the platform can
+        plausibly have (:data:`identify.model.plausible.PARAMETER_RANGES`: ``tau = 67.4``
+        is milliseconds typed for seconds), naming the likely unit slip; False takes them.
     sequence_trials : int
         Trials of the last mode-sequence pass (:func:`identify.fitting.sequence.misfit_triggers`:
         local changes where the model's triggers misfit, each a short re-solve of the
@@ -195,6 +200,7 @@ class FitOptions:
     trigger: str = "uniform"
     stick_speed: str = "check"
     auto_starts: int = 4
+    check_platform: bool = True
 
     def __post_init__(self):
         get_law(self.law)
@@ -218,6 +224,11 @@ class FitOptions:
             spec(name).check(value, "fixed ")
             if name in free:
                 raise ValueError(f"{name} is both free and fixed")
+        for name, value in dict(self.start).items():
+            spec(name).check(value, "start ")
+        if self.check_platform:
+            check_parameters(self.fixed, "fixed ")
+            check_parameters(self.start, "start ")
         for name, (lo, hi) in dict(self.bounds).items():
             if name not in free:
                 raise ValueError(f"bounds: {name} is not free")

@@ -84,9 +84,13 @@ class ParamSpec:
         if not math.isfinite(v):
             raise ParameterError(f"{where}{self.name} = {v}: must be a finite number")
         if v < self.lower or v > self.upper:
+            from identify.model.plausible import PARAMETER_RANGES
+
+            r = PARAMETER_RANGES.get(self.name)
+            hint = r.hint(v) if r is not None else ""
             raise ParameterError(
                 f"{where}{self.name} = {v:g} {self.unit}: must lie in "
-                f"[{self.lower:g}, {self.upper:g}] {self.unit}"
+                f"[{self.lower:g}, {self.upper:g}] {self.unit}" + (f": {hint}" if hint else "")
             )
         if self.log and v <= 0:
             raise ParameterError(f"{where}{self.name} = {v:g}: must be > 0")

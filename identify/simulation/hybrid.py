@@ -39,9 +39,10 @@ from typing import Any
 
 import numpy as np
 
+from identify.messages import summarise
 from identify.model.laws import get_law
 from identify.model.params import ParameterError, normal_load_from_voltage, parameter_set, validate_parameters
-from identify.model.plausible import platform_problem
+from identify.model.plausible import check_parameters, platform_problem
 from identify.model.symbolic import LENGTH_UNIT, N_STATES, SPEED_UNIT, TIME_UNIT, Model, slip_integrator, slip_rhs
 
 __all__ = [
@@ -452,7 +453,7 @@ class SimulationResult:
             if s["mean_rest_time_s"] is not None:
                 lines.append(f"  mean rest time {s['mean_rest_time_s'] * 1e3:.3f} ms")
         lines.append(f"  wall time {self.wall_time_s:.3f} s, {self.integrator_calls} integrator calls")
-        lines += [f"  warning: {w}" for w in self.warnings]
+        lines += [f"  warning: {w}" for w in summarise(self.warnings)]
         return "\n".join(lines)
 
     def to_json(self) -> dict:
@@ -886,7 +887,7 @@ def simulate_run(
     )
     res.regime = classify(events, r.dx, res.moving_fraction)
     res.wall_time_s = _time.perf_counter() - wall0
-    for w in r.warnings:
+    for w in summarise(r.warnings):
         log.warning(w)
     return res
 
@@ -938,8 +939,9 @@ def simulate(
     options : SimulationOptions
     check_platform : bool
         Refuse conditions outside what the platform can do
-        (:data:`identify.model.plausible.PLATFORM_RANGES`), naming the likely unit slip;
-        False simulates them anyway.
+        (:data:`identify.model.plausible.PLATFORM_RANGES`) and parameters outside what a
+        contact on it can plausibly have (``PARAMETER_RANGES``), naming the likely unit
+        slip; False simulates them anyway.
 
     Returns
     -------
@@ -962,6 +964,8 @@ def simulate(
     overrides = dict(params or {})
     if stick_speed_m_per_s is not None:
         overrides["v_stick"] = stick_speed_m_per_s
+    if check_platform:
+        check_parameters(overrides, "params: ")
     model = Model(get_law(law))
     values = parameter_set(coating, overrides)
     step = values["step_size"] * values["step_scale"]

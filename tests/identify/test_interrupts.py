@@ -144,7 +144,6 @@ def test_the_library_fit_raises_interrupted_with_its_best_point():
     json.dumps(saved)  # (JSON-ready)
 
 
-@pytest.mark.slow
 def test_interrupted_verification_keeps_its_finished_fits(tmp_path):
     cmd = [sys.executable, "-m", "design", "experiment", "--runs", "2", "--springs", "2.13", "--loads-uN", "5", "10",
            "--fp", "30", "100", "--travel-um", "12", "--json", "plan.json", "--verify", "3", "--workers", "2"]

@@ -72,3 +72,41 @@ def test_analyze_with_no_usable_run_exits_2_with_an_error_line(tmp_path, capsys)
     code = cli_main(["analyze", str(_copy(tmp_path, normal_load_uN=1e-5))])
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: no run could be analysed")
+
+
+@pytest.mark.parametrize("where, value, slip", [("tau", 67.4, "ms"), ("vc", 1.0, "µm/s"), ("dc", 20.0, "nm"),
+                                                ("mu_max", 79.6, "per cent"), ("step_size", 46.0, "nm")])
+def test_a_parameter_in_the_wrong_unit_is_refused_with_the_likely_slip(where, value, slip):
+    with pytest.raises(ParameterError, match=rf"{where} = {value:g}.*did you give it in {slip}\?"):
+        identify.FitOptions(start={where: value}) if where in ("tau", "mu_max") else \
+            identify.FitOptions(fixed={where: value})
+
+
+def test_a_parameter_outside_on_purpose_is_taken_when_told():
+    assert identify.FitOptions(start={"tau": 67.4}, check_platform=False).start == {"tau": 67.4}
+    with pytest.raises(ParameterError, match=r"params: tau = 67.4 s.*ms"):
+        identify.simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=5, step_frequency_Hz=100,
+                          travel_um=1, params={"tau": 67.4})
+    run = identify.simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=5, step_frequency_Hz=100,
+                            travel_um=1, params={"tau": 67.4}, check_platform=False)
+    assert run.parameters["tau"] == 67.4
+    # a fit may end near 0 in μmin or A: the plausible range checks their upper end only
+    identify.FitOptions(start={"A": 1e-9, "mu_min": 1e-6})
+
+
+def test_the_fit_command_refuses_a_slipped_unit_before_any_work(tmp_path, capsys):
+    code = cli_main(["fit", str(DATA), "--fix", "v_stick=1e-5", "--start", "tau=67.4", "--json",
+                     str(tmp_path / "fit.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: start tau = 67.4 s") and "did you give it in ms" in err
+    assert "[fit]" not in err  # (refused before loading anything)
+
+
+def test_a_warning_repeated_at_every_slip_is_said_a_few_times_and_counted():
+    from identify.messages import summarise
+
+    msgs = [f"t = {0.01 * i:.6g} s: more than 100 reversals in one phase; phase cut" for i in range(435)]
+    msgs.insert(5, "moving phase from t = 0.3 s failed: x")
+    out = summarise(msgs)
+    assert len(out) == 5 and out[3] == "... and 432 more like it" and out[4].startswith("moving phase")
+    assert summarise(["a 1", "a 2"]) == ["a 1", "a 2"]
