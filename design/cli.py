@@ -28,6 +28,7 @@ from pathlib import Path
 
 from identify import __version__
 from identify.cli import program_name
+from identify.fitting.stick_choice import STICK_SPEED_AUTO
 from identify.jsonio import write_json
 
 __all__ = ["main", "build_parser"]
@@ -137,9 +138,9 @@ def _add_ranges(sub) -> None:
                    help="step frequencies (Hz); default 10 30 100 300 1000 3000")
     p.add_argument("--travel-um", type=float, default=100.0, metavar="T",
                    help="puller travel the 20 slips must fit in (µm, default 100)")
-    p.add_argument("--stick-speed", type=float, default=0.0, metavar="V",
-                   help="stick option v_stick (m/s); 0 = equations as written (default), "
-                   "1e-5 is the README's stick option")
+    p.add_argument("--stick-speed", type=float, default=STICK_SPEED_AUTO, metavar="V",
+                   help="stick option v_stick (m/s; default %(default)g, as design experiment and "
+                   "identify fit --stick-speed auto); 0 = the equations as written")
     p.add_argument("--json", type=Path, default=None, metavar="OUT",
                    help="write the result as JSON to OUT")
     p.add_argument("--plot", type=Path, default=None, metavar="FILE",
@@ -186,6 +187,9 @@ def _add_experiment(sub) -> None:
     p.add_argument("--prior", type=Path, default=None, metavar="FIT.json",
                    help="a fit's JSON (python -m identify fit --json): design what to run next")
     p.add_argument("--travel-um", type=float, default=30.0, help="travel of every run (µm, default 30)")
+    p.add_argument("--stick-speed", type=float, default=STICK_SPEED_AUTO, metavar="V",
+                   help="stick option v_stick the runs are planned and verified with (m/s; default %(default)g, "
+                   "as design ranges); 0 = the equations as written")
     p.add_argument("--loads-uN", type=float, nargs="+", default=None, metavar="NB",
                    help="candidate loads (µN; default 4 log-spaced in each spring's Table I range, <= 60)")
     p.add_argument("--fp", type=float, nargs="+", default=None, metavar="FP",
@@ -230,7 +234,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     if not cands:
         raise ValueError("no candidate run: every --loads-uN value lies outside the springs' Table I ranges")
     plan = design_experiment(args.runs, args.coating, candidates=cands, criterion=args.criterion,
-                             prior_information=prior, travel_um=args.travel_um, progress=say)
+                             prior_information=prior, travel_um=args.travel_um, progress=say,
+                             stick_speed_m_per_s=args.stick_speed)
     if args.verify:
         if args.json is not None:  # the design is saved before the long verification
             write_json(args.json, plan.to_json())
@@ -238,7 +243,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         if record is None and args.json is not None:
             record = args.json.with_suffix(".verify.jsonl")
         jitter = {} if args.verify_jitter is None else {"jitter_load": args.verify_jitter}
-        verify_plans(plan, args.verify, seed=args.seed, workers=args.workers, progress=say, record=record, **jitter)
+        verify_plans(plan, args.verify, seed=args.seed, workers=args.workers, progress=say, record=record,
+                     stick_speed_m_per_s=args.stick_speed, **jitter)
     print(plan.report())
     _write_outputs(args, plan)
     return 0

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from identify.executors import stop_pool
+from identify.fitting.stick_choice import STICK_SPEED_AUTO
 from identify.interrupts import Interrupted
 from identify.jsonio import dumps
 
@@ -41,7 +42,7 @@ __all__ = ["Candidate", "CRITERIA", "ExperimentPlan", "run_information", "run_in
 CRITERIA = ("D", "A", "E")
 DEFAULT_FREE = ("mu_max", "mu_min", "tau", "A")
 JITTER_LOAD = 0.05  # verification: replicate loads within ±5 % (redraws the lock phases)
-STICK_SPEED = 1e-5  # the simulator's stick option (README): as written, most of the grid creeps
+STICK_SPEED = STICK_SPEED_AUTO  # the stick option (README): as written, most of the grid creeps
 PAPER_LOADS_UN = (0.98, 8.0, 18.1)
 PAPER_FPS_HZ = (10.0, 100.0, 500.0, 1000.0)
 
@@ -224,6 +225,10 @@ class ExperimentPlan:
     # B⁻¹ alone: every trigger an independent observation (what phase locking undoes)
     fisher_stderr: dict = field(default_factory=dict)
     reference_fisher_stderr: dict = field(default_factory=dict)
+    # why the reference cannot be compared ('' when it can): runs without information, or
+    # too few runs with it to fix every parameter
+    reference_note: str = ""
+    stick_speed_m_per_s: float = STICK_SPEED  # the stick option the runs were planned with
     candidates: list = field(default_factory=list)  # (Candidate, summary)
     enumeration: dict = field(default_factory=dict)
     prior_used: bool = False
@@ -237,7 +242,9 @@ class ExperimentPlan:
         return float(np.exp(np.mean(np.log(rel))))
 
     def report(self) -> str:
-        lines = [f"Experiment plan: {self.coating}, {len(self.plan)} runs, {self.criterion}-optimal"
+        option = (f"stick option v_stick = {self.stick_speed_m_per_s:g} m/s" if self.stick_speed_m_per_s
+                  else "equations as written")
+        lines = [f"Experiment plan: {self.coating}, {len(self.plan)} runs, {self.criterion}-optimal ({option})"
                  + (" (with prior information)" if self.prior_used else ""),
                  f"  search: {self.enumeration.get('method')}, {self.enumeration.get('plans_evaluated')} plans "
                  f"evaluated over {len(self.candidates)} candidates"]
@@ -257,8 +264,12 @@ class ExperimentPlan:
                          f"   ({fa:.3g}, {fb:.3g})")
         gp = self._gmean(self.predicted_stderr, self.nominal)
         gr = self._gmean(self.reference_stderr, self.nominal)
-        lines.append(f"  geometric-mean relative stderr: plan {gp:.4g}, reference {gr:.4g} "
-                     f"(reference / plan = {gr / gp:.2f})")
+        if self.reference_note:
+            lines.append(f"  geometric-mean relative stderr: plan {gp:.4g}; the reference (nan above) cannot be "
+                         f"compared: {self.reference_note}")
+        else:
+            lines.append(f"  geometric-mean relative stderr: plan {gp:.4g}, reference {gr:.4g} "
+                         f"(reference / plan = {gr / gp:.2f})")
         if self.monte_carlo:
             mc = self.monte_carlo
             jit = mc.get("jitter_load", 0.0)
@@ -287,12 +298,14 @@ class ExperimentPlan:
     def to_json(self) -> dict:
         return dict(
             coating=self.coating, criterion=self.criterion, free=list(self.free), nominal=self.nominal,
+            stick_speed_m_per_s=self.stick_speed_m_per_s,
             plan=[c.to_json() for c in self.plan], predicted_stderr=self.predicted_stderr,
             fisher_stderr=self.fisher_stderr, criterion_value=self.criterion_value,
             reference_plan=dict(plan=[c.to_json() for c in self.reference_plan],
                                 predicted_stderr=self.reference_stderr,
                                 fisher_stderr=self.reference_fisher_stderr,
-                                criterion_value=self.reference_criterion_value),
+                                criterion_value=self.reference_criterion_value,
+                                note=self.reference_note or None),
             enumeration=self.enumeration, prior_used=self.prior_used,
             candidates=[dict(c.to_json(), **{k: v for k, v in s.items() if k != "information"})
                         for c, s in self.candidates],
@@ -317,6 +330,19 @@ class ExperimentPlan:
         ax.set(yscale="log", ylabel="relative standard error", title=f"{self.coating}, {len(self.plan)} runs")
         ax.legend(fontsize=7, frameon=False)
         return ax
+
+
+def _reference_note(ref, infos, se_ref, free) -> str:
+    """Why the reference plan's standard errors are undefined ('' when they are not)."""
+    missing = [n for n in free if not np.isfinite(se_ref.get(n, np.nan))]
+    if not missing:
+        return ""
+    unused = [f"{c.label()}: {infos[c][2].get('reason')}" for c in ref if not infos[c][2].get("used")]
+    used = len(ref) - len(unused)
+    why = (f"{used} of its {len(ref)} run(s) carry information, too little to fix {', '.join(missing)}"
+           if used else f"none of its {len(ref)} run(s) carries information")
+    return why + (" (" + "; ".join(unused) + ")" if unused else "") + \
+        "; give more runs (--runs) or a longer travel (--travel-um)"
 
 
 def paper_plan(n_runs: int, travel_um: float = 30.0) -> list:
@@ -435,6 +461,7 @@ def design_experiment(n_runs: int, coating: str = "FOTAS", *, springs: Sequence[
     se = dict(zip(free, _stderr(effective(best)).tolist()))
     se_ref = dict(zip(free, _stderr(I_ref).tolist()))
     return ExperimentPlan(
+        reference_note=_reference_note(ref, infos, se_ref, free), stick_speed_m_per_s=stick_speed_m_per_s,
         coating=coating, criterion=criterion, free=free, nominal=nominal, plan=plan, predicted_stderr=se,
         criterion_value=float(best_v), reference_plan=ref, reference_stderr=se_ref,
         reference_criterion_value=float(_criterion(rel(I_ref), criterion)),

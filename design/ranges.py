@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from identify.fitting.stick_choice import STICK_SPEED_AUTO
 from identify.model.params import parameter_set
 from identify.simulation.regimes import regime_map
 
@@ -283,7 +284,7 @@ def operating_ranges(
     loads_uN: Sequence[float] | None = None,
     fps_Hz: Sequence[float] | None = None,
     travel_um: float = 100.0,
-    stick_speed_m_per_s: float = 0.0,
+    stick_speed_m_per_s: float = STICK_SPEED_AUTO,
     min_slip_m: float = 90e-9,
     min_slips: int = 20,
     max_frame_rate_Hz: float = 10_000.0,
@@ -305,7 +306,9 @@ def operating_ranges(
     travel_um : float
         Puller travel in which ``min_slips`` must fit, µm (at most Table I's 100 µm).
     stick_speed_m_per_s : float
-        Stick option ``v_stick``, m/s; 0 keeps the equations as written (README: 1e-5).
+        Stick option ``v_stick``, m/s; 0 keeps the equations as written. The default is
+        the one ``design experiment`` plans with and ``identify fit --stick-speed auto``
+        takes (1e-5), so that the two design commands call each condition alike.
     min_slip_m, min_slips, max_frame_rate_Hz, frames_per_step
         See :class:`UsabilityRules`.
     progress : callable(done, total), optional

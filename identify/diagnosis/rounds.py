@@ -190,11 +190,24 @@ class DiagnosisResult:
     final_problem: Any = field(repr=False, default=None)
     final_w: Any = field(repr=False, default=None)
 
+    def not_converged(self) -> list:
+        """Every candidate refit, in any round, that failed or ended without converging
+        (its round, effect and status)."""
+        done = ("Solve_Succeeded", STALLED, GAVE_UP)
+        return [dict(round=k + 1, effect=c["effect"], status=str(c.get("status") or c.get("reason") or "failed"))
+                for k, rnd in enumerate(self.rounds) for c in rnd
+                if c.get("effect") and c.get("status") != "not applicable"
+                and (not c.get("ok") or c.get("status") not in done)]
+
     def report(self) -> str:
         L = []
         L.append("[[Diagnosis]]")
         L.append(f"    verdict            = {self.verdict}")
         L.append(f"    effects added      = {', '.join(self.effects) if self.effects else '(none)'}")
+        unconverged = self.not_converged()
+        if unconverged:  # (the verdict stands on these refits too: the reader must see which ended short)
+            L.append(f"    not converged      = {len(unconverged)} refit(s): " + "; ".join(
+                f"{c['effect']} (round {c['round']}: {c['status']})" for c in unconverged))
         for grp in self.confounded:
             L.append(f"    confounded         = {' | '.join(grp['effects'])}: {grp['why']}")
         base = next((c for c in (self.rounds[0] if self.rounds else []) if c.get("effect") is None), None)
@@ -287,7 +300,7 @@ class DiagnosisResult:
 
     def to_json(self) -> dict:
         return dict(
-            verdict=self.verdict, effects=list(self.effects),
+            verdict=self.verdict, effects=list(self.effects), not_converged=self.not_converged(),
             where=[m.to_json() for m in self.where],
             where_final=[m.to_json() for m in self.where_final],
             candidates=[_cand_json(c) for c in self.candidates],

@@ -24,7 +24,7 @@ TINY = {"loads_uN": [2.0, 5.0], "fps_Hz": [10.0, 1000.0, 10000.0], "travel_um": 
 def tiny() -> OperatingRanges:
     # FOTAS, k = 2.13 N/m, equations as written: stick-slip at 10 Hz, creep at 1 kHz
     # (README regime maps); 10 kHz needs 20 000 fps and is never simulated.
-    return operating_ranges(2.13, "FOTAS", **TINY)
+    return operating_ranges(2.13, "FOTAS", stick_speed_m_per_s=0.0, **TINY)
 
 
 def stub_regime_map(monkeypatch, regimes, mean_slip_um, n_slips, calls=None):

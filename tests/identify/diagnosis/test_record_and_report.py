@@ -1,0 +1,28 @@
+"""The diagnosis's report names every refit that ended short of convergence."""
+
+from identify.diagnosis.rounds import DiagnosisOptions, DiagnosisResult
+
+
+def _result(rounds):
+    return DiagnosisResult(verdict="adequate", effects=[], where=[], where_final=[], candidates=[], rounds=rounds,
+                           baseline=None, final=dict(gap_um=0.02, heldout_gap_um=0.02), confounded=[],
+                           options=DiagnosisOptions(), timing=dict(total_s=1.0, refits=3))
+
+
+def _scored(effect, status):
+    return dict(effect=effect, ok=True, status=status, p_value=0.5, delta_nll=0.1, delta_aic=1.8, delta_bic=5.0,
+                gap_before_um=0.02, gap_after_um=0.02, heldout_gap_before_um=0.02, heldout_gap_after_um=0.02,
+                note="")
+
+
+def test_every_refit_that_ended_short_is_listed_under_the_verdict():
+    rounds = [[dict(effect=None, ok=False, status="Solve_Succeeded"),
+               _scored("drift", "Solve_Succeeded"), _scored("logarithmic", "Maximum_Iterations_Exceeded"),
+               dict(effect="damping", ok=False, status="failed: RuntimeError: x"),
+               dict(effect="topography", ok=False, status="not applicable", reason="not applicable: one run")]]
+    res = _result(rounds)
+    assert [(c["effect"], c["status"]) for c in res.not_converged()] == [
+        ("logarithmic", "Maximum_Iterations_Exceeded"), ("damping", "failed: RuntimeError: x")]
+    line = next(x for x in res.report().splitlines() if "not converged" in x)
+    assert "2 refit(s)" in line and "logarithmic (round 1: Maximum_Iterations_Exceeded)" in line
+    assert res.to_json()["not_converged"][0]["effect"] == "logarithmic"
