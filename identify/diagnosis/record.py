@@ -204,6 +204,7 @@ class RecordedExecutor(cf.Executor):
         self.inner, self.record = inner, record
 
     def submit(self, fn, *args, **kwargs):
+        """A future of ``fn(*args, **kwargs)``: done at once when the record holds it."""
         key = digest((fn, args, kwargs))
         if key in self.record.results:
             f: cf.Future = cf.Future()
@@ -220,4 +221,5 @@ class RecordedExecutor(cf.Executor):
         return fut
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False):
+        """Shut the wrapped executor down."""
         self.inner.shutdown(wait=wait, cancel_futures=cancel_futures)

@@ -31,6 +31,16 @@ class PlatformRange:
         self.lo, self.hi, self.unit, self.why = lo, hi, unit, why
         self.units = units  # factor -> the unit a value that factor off was likely given in
 
+    def outside(self, name: str, value: float, what: str, override: str) -> str | None:
+        """The message for ``name`` = ``value`` outside the range ('what' it is outside
+        of, and how to override), with the likely slip; None when inside or not a
+        positive number (that is another rule's business)."""
+        if not math.isfinite(value) or value <= 0 or self.lo <= value <= self.hi:
+            return None
+        hint = self.hint(value)
+        return (f"{name} = {value:g} {self.unit} lies outside {what}, {self.lo:g} to {self.hi:g} {self.unit} "
+                f"({self.why})" + (f": {hint}" if hint else "") + f"; {override}")
+
     def hint(self, value: float) -> str:
         """The likely unit slip of a value outside the range ('' if none fits)."""
         for factor, name in self.units.items():
@@ -64,13 +74,10 @@ def platform_problem(name: str, value: float) -> str | None:
     when it lies inside or ``name`` has no range (a value that is not a positive number is
     left to the rule that it must be one)."""
     r = PLATFORM_RANGES.get(name)
-    if r is None or not math.isfinite(value) or value <= 0 or r.lo <= value <= r.hi:
-        return None
-    hint = r.hint(value)
-    return (f"{name} = {value:g} {r.unit} lies outside what the platform can do, {r.lo:g} to {r.hi:g} {r.unit} "
-            f"({r.why})" + (f": {hint}" if hint else "")
-            + "; a run outside on purpose says so (\"outside_platform_ranges\": true in its metadata; "
-            "check_platform=False in simulate, --outside-platform-ranges on the command line)")
+    return None if r is None else r.outside(
+        name, value, "what the platform can do",
+        "a run outside on purpose says so (\"outside_platform_ranges\": true in its metadata; "
+        "check_platform=False in simulate, --outside-platform-ranges on the command line)")
 
 
 PARAMETER_RANGES = {
@@ -106,12 +113,9 @@ def parameter_problem(name: str, value: float) -> str | None:
     platform can plausibly have, with the likely unit slip; None when it lies inside, is
     not positive (a null effect, or the bounds' business) or ``name`` has no range."""
     r = PARAMETER_RANGES.get(name)
-    if r is None or not math.isfinite(value) or value <= 0 or r.lo <= value <= r.hi:
-        return None
-    hint = r.hint(value)
-    return (f"{name} = {value:g} {r.unit} lies outside the plausible range {r.lo:g} to {r.hi:g} {r.unit} "
-            f"({r.why})" + (f": {hint}" if hint else "")
-            + "; a value outside on purpose: check_platform=False (--outside-platform-ranges)")
+    return None if r is None else r.outside(
+        name, value, "the plausible range", "a value outside on purpose: check_platform=False "
+        "(--outside-platform-ranges)")
 
 
 def check_parameters(values, where: str = "") -> None:
