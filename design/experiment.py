@@ -659,9 +659,8 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
         kept = f"; the {len(rows)} finished fit(s) are in {record}, and a rerun with it resumes" if record else ""
         raise Interrupted(f"verification stopped after {len(rows)} of {len(runs_of) * repeats} fit(s){kept}",
                           dict(record=str(record) if record else None, fits=len(rows))) from None
-    else:
-        ex.shutdown()
     finally:
+        ex.shutdown()  # (after stop_pool there is nothing left to wait for)
         if fh is not None:
             fh.close()
     out: dict = {}

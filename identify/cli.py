@@ -305,8 +305,7 @@ def _run_fit(args, data, true_values=None) -> int:
         res = fit(data, coating=args.coating, options=opts, true_values=true_values,
                   progress=lambda msg: print(f"[fit] {msg}", file=sys.stderr, flush=True))
     except interrupts.Interrupted as err:
-        return _save_interrupted(err, Path(args.json).with_suffix(".interrupted.json") if args.json
-                                 else Path("fit.interrupted.json"))
+        return _save_interrupted(err, Path(args.json).with_suffix(".interrupted.json"))
     # the fit is saved before any optional extra work, so nothing computed is lost
     if args.json:
         print(f"wrote {write_json(args.json, res.to_json())}", file=sys.stderr)
@@ -316,9 +315,8 @@ def _run_fit(args, data, true_values=None) -> int:
                 res = res.with_profiles(res.profile(name, progress=lambda msg: print(f"[fit] {msg}",
                                                                                      file=sys.stderr, flush=True)))
         except KeyboardInterrupt:
-            kept = f"the fit{' and the profiles before it' if name != profiles[0] else ''} in {args.json}" \
-                if args.json else "nothing (no --json)"
-            print(f"interrupted during the profile of {name}: saved {kept}", file=sys.stderr)
+            before = " and the profiles before it" if name != profiles[0] else ""
+            print(f"interrupted during the profile of {name}: saved the fit{before} in {args.json}", file=sys.stderr)
             return 130
         if args.json:
             write_json(args.json, res.to_json())

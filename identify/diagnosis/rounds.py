@@ -385,14 +385,10 @@ def _regime_mismatch(err, fopts: FitOptions, opts: DiagnosisOptions, t0: float,
     if err.regime_runs:
         say(f"no baseline: screening the candidates on the {len(err.regime_runs)} run(s) left out for their regime")
         # each candidate simulated in the diagnosis's workers, as its refits would be
-        own, closer = (executor, None) if executor is not None else make_executor(opts.workers, opts.dask)
-        try:
-            current, screen = regime_screen(opts.effects, fopts.law, fopts.free, err.values, err.regime_runs, say,
-                                            executor=own)
-            moves = own_screen(fopts.law, fopts.free, err.values, err.regime_runs, say, executor=own)
-        finally:
-            if closer is not None:
-                closer()
+        own = executor
+        current, screen = regime_screen(opts.effects, fopts.law, fopts.free, err.values, err.regime_runs, say,
+                                        executor=own)
+        moves = own_screen(fopts.law, fopts.free, err.values, err.regime_runs, say, executor=own)
     rc = (current or {}).get("regime") or {}
     p = float(rc["p_value"]) if rc.get("df") else 0.0
     detail = (f"{n} of {n + len(used)} runs show no resolvable slip, where the model at the coating's preset "
@@ -535,9 +531,9 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
                 raise
             n = len(record.results)
             where = "the baseline fit and " if record.baseline is not None else ""
-            raise interrupts.Interrupted(f"{where}{n} finished refit(s) in the record {record.path} (resume goes on "
-                                         "from there)", dict(record=str(record.path), refits=n,
-                                                             baseline=record.baseline is not None)) from err
+            raise interrupts.Interrupted(f"{where}{n} finished refit(s) in the record {record.path}",
+                                         dict(record=str(record.path), refits=n,
+                                              baseline=record.baseline is not None)) from err
         finally:
             if closer is not None:
                 closer()
@@ -587,111 +583,107 @@ def _diagnose(data, *, coating, fit_options, options, baseline, executor, progre
     current = dict(values=values0, free=tuple(prob.theta.names), law=prob.law.name,
                    w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta,
                    chi2=float(r0 @ r0) + prob.chi2_constant(), n_eff=prob.n_effective())
-    own, closer = (executor, None) if executor is not None else make_executor(opts.workers, opts.dask)
+    own = executor
     threads = 1 if (opts.workers > 1 or opts.dask) else max(int(fopts.threads), 1)
     rounds, effects, confounded = [], [], []
     final_res = None
     n_refits = 0
-    try:
-        remaining = list(opts.effects)
-        at_magnitude = {}  # candidates that fit better held at their realistic magnitude than refitted
-        while True:
-            tasks, skipped = _tasks(remaining, current, runs, fopts, folds, opts, threads, where_hint=where0,
-                                    regime_runs=regime_runs, at_magnitude=at_magnitude)
-            say(f"round {len(rounds) + 1}: {len(tasks) - 1} candidate refit(s) and the current model, "
-                f"{len(folds)} held-out fold(s) each")
-            results = []
-            futs = {}
-            for t in sorted(tasks, key=_expected_cost, reverse=True):
-                try:
-                    futs[own.submit(run_candidate, t)] = t
-                except Exception as err:  # a broken pool or a lost cluster: the candidate fails
-                    results.append(dict(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err)))
-            for i, fut in enumerate(cf.as_completed(futs), 1):
-                t = futs[fut]
-                try:
-                    res = fut.result()
-                except Exception as err:  # a lost worker: the candidate fails, the rest goes on
-                    res = dict(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err))
-                say(f"  {i}/{len(tasks)} done: {t.effect or 'current model'} ({res.get('status')})")
-                results.append(res)
-            n_refits += len(tasks)
-            base = next(r for r in results if r["effect"] is None)
-            if not base.get("ok"):
-                notes.append(f"the current model could not be re-evaluated: {base.get('status')}")
-                rounds.append([base] + skipped)
-                if final_res is not None:  # the named candidate's numbers, on the sequence it was named on
-                    notes.append("the gaps after are the last named candidate's, on the mode sequence it was "
-                                 "named on")
-                else:
-                    final_res = base
-                break
-            final_res = base  # the current model, measured in this round
-            scored = _score(results, base, opts, len([t for t in tasks if t.effect]),
-                            fold_names=[[runs[i].name for i in f] for f in folds])
-            rnd = [base] + sorted(scored, key=_rank) + skipped
-            rounds.append(rnd)
-            n_cand = len([t for t in tasks if t.effect])
-            retry = None
-            if opts.resequence is not False:
-                retry = functools.partial(_own_sequence, base=base, current=current, runs=runs, fopts=fopts,
-                                          prob0=prob, folds=folds, opts=opts, threads=threads, executor=own,
-                                          say=say)
-            beside = functools.partial(_beside, scored=scored, base=base, current=current, runs=runs, fopts=fopts,
-                                       opts=opts, threads=threads, executor=own, where_hint=where0, n_cand=n_cand,
-                                       say=say)
-            chosen, groups = _choose(scored, base, beside, retry)
-            _regime_notes(scored, base)
-            confounded.extend(groups)
-            n_refits += sum(len(c.get("beside", [])) for c in scored)  # each check is a refit
-            # each measurement on a candidate's own sequence, and of the current model's control
-            n_refits += sum(c.get("own_sequence", {}).get("refits", 0) for c in scored)
-            adopted = chosen.pop("_own", None) if chosen is not None else None
-            for c in scored:
-                c.pop("_own", None)  # (the models of candidates not named)
-            if chosen is None or len(effects) >= opts.max_effects:
-                break  # (a round of the final model alone also ends here: it has no candidates)
-            chosen["named"] = True
-            final_res = chosen  # the model with it, as measured in this round
-            effects.append(chosen["effect"])
-            # the next round retries only what was significant in this one: adding an
-            # effect explains part of the misfit, it does not create evidence elsewhere
-            remaining = [c["effect"] for c in scored if c.get("significant") and c["effect"] != chosen["effect"]]
-            # ... and what fit better held at its realistic magnitude than its refit, which
-            # ended near its null (evidence without an estimate), started there too.
-            # Measured (the two-effect set, load offset and step size): in round 1 the step
-            # size's refit stayed at 1 ± 0.013 while 1.05 fit better; not retried, round 2
-            # named the topography (a ripple of 9.9 µm) in its place
-            at_magnitude = {c["effect"]: c["at_magnitude"] for c in scored
-                            if (c.get("at_magnitude") or {}).get("better") and c["effect"] != chosen["effect"]}
-            remaining += [e for e in at_magnitude if e not in remaining]
-            eff = get_effect(chosen["effect"])
-            if adopted:  # named on the mode sequence it decided: go on from there, as measured there
-                current, runs, final_res = adopted["current"], adopted["runs"], adopted["measured"]
+    remaining = list(opts.effects)
+    at_magnitude = {}  # candidates that fit better held at their realistic magnitude than refitted
+    while True:
+        tasks, skipped = _tasks(remaining, current, runs, fopts, folds, opts, threads, where_hint=where0,
+                                regime_runs=regime_runs, at_magnitude=at_magnitude)
+        say(f"round {len(rounds) + 1}: {len(tasks) - 1} candidate refit(s) and the current model, "
+            f"{len(folds)} held-out fold(s) each")
+        results = []
+        futs = {}
+        for t in sorted(tasks, key=_expected_cost, reverse=True):
+            try:
+                futs[own.submit(run_candidate, t)] = t
+            except Exception as err:  # a broken pool or a lost cluster: the candidate fails
+                results.append(dict(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err)))
+        for i, fut in enumerate(cf.as_completed(futs), 1):
+            t = futs[fut]
+            try:
+                res = fut.result()
+            except Exception as err:  # a lost worker: the candidate fails, the rest goes on
+                res = dict(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err))
+            say(f"  {i}/{len(tasks)} done: {t.effect or 'current model'} ({res.get('status')})")
+            results.append(res)
+        n_refits += len(tasks)
+        base = next(r for r in results if r["effect"] is None)
+        if not base.get("ok"):
+            notes.append(f"the current model could not be re-evaluated: {base.get('status')}")
+            rounds.append([base] + skipped)
+            if final_res is not None:  # the named candidate's numbers, on the sequence it was named on
+                notes.append("the gaps after are the last named candidate's, on the mode sequence it was "
+                             "named on")
             else:
-                current = dict(values=chosen["values"], free=tuple(chosen["free"]), law=chosen["law"],
-                               w=chosen["w"], ev_M=chosen["ev_M"], n_theta=len(chosen["free"]), chi2=chosen["chi2"],
-                               n_eff=chosen["n_eff"], bounds={**current.get("bounds", {}), **dict(eff.bounds)})
-            say(f"added {chosen['effect']} ({', '.join(eff.parameters) or eff.law}); trying the rest again")
-            if len(effects) >= opts.max_effects:
-                remaining = []
-            changed = False
-            if not adopted and (opts.resequence is True or (opts.resequence == "auto" and not _at_noise(chosen, opts))):
-                try:
-                    current, runs, changed = _resequence(current, runs, fopts, prob, say)
-                except Exception as err:  # the named model stands with the baseline's sequence
-                    notes.append(f"deciding the mode sequence again with {chosen['effect']} failed: "
-                                 f"{type(err).__name__}: {err}")
-            if not remaining and not changed:
-                # nothing left to try: the final model is this candidate's refit, already
-                # measured on the same folds (a round of it alone refitted every held-out
-                # fold again: 8 exact refits, ~10 min, on the drift data), and no candidate
-                # is left for the verdict to judge
-                rounds.append([dict(final_res if adopted else chosen, effect=None, named=False)])
-                break
-    finally:
-        if closer is not None:
-            closer()
+                final_res = base
+            break
+        final_res = base  # the current model, measured in this round
+        scored = _score(results, base, opts, len([t for t in tasks if t.effect]),
+                        fold_names=[[runs[i].name for i in f] for f in folds])
+        rnd = [base] + sorted(scored, key=_rank) + skipped
+        rounds.append(rnd)
+        n_cand = len([t for t in tasks if t.effect])
+        retry = None
+        if opts.resequence is not False:
+            retry = functools.partial(_own_sequence, base=base, current=current, runs=runs, fopts=fopts,
+                                      prob0=prob, folds=folds, opts=opts, threads=threads, executor=own,
+                                      say=say)
+        beside = functools.partial(_beside, scored=scored, base=base, current=current, runs=runs, fopts=fopts,
+                                   opts=opts, threads=threads, executor=own, where_hint=where0, n_cand=n_cand,
+                                   say=say)
+        chosen, groups = _choose(scored, base, beside, retry)
+        _regime_notes(scored, base)
+        confounded.extend(groups)
+        n_refits += sum(len(c.get("beside", [])) for c in scored)  # each check is a refit
+        # each measurement on a candidate's own sequence, and of the current model's control
+        n_refits += sum(c.get("own_sequence", {}).get("refits", 0) for c in scored)
+        adopted = chosen.pop("_own", None) if chosen is not None else None
+        for c in scored:
+            c.pop("_own", None)  # (the models of candidates not named)
+        if chosen is None or len(effects) >= opts.max_effects:
+            break  # (a round of the final model alone also ends here: it has no candidates)
+        chosen["named"] = True
+        final_res = chosen  # the model with it, as measured in this round
+        effects.append(chosen["effect"])
+        # the next round retries only what was significant in this one: adding an
+        # effect explains part of the misfit, it does not create evidence elsewhere
+        remaining = [c["effect"] for c in scored if c.get("significant") and c["effect"] != chosen["effect"]]
+        # ... and what fit better held at its realistic magnitude than its refit, which
+        # ended near its null (evidence without an estimate), started there too.
+        # Measured (the two-effect set, load offset and step size): in round 1 the step
+        # size's refit stayed at 1 ± 0.013 while 1.05 fit better; not retried, round 2
+        # named the topography (a ripple of 9.9 µm) in its place
+        at_magnitude = {c["effect"]: c["at_magnitude"] for c in scored
+                        if (c.get("at_magnitude") or {}).get("better") and c["effect"] != chosen["effect"]}
+        remaining += [e for e in at_magnitude if e not in remaining]
+        eff = get_effect(chosen["effect"])
+        if adopted:  # named on the mode sequence it decided: go on from there, as measured there
+            current, runs, final_res = adopted["current"], adopted["runs"], adopted["measured"]
+        else:
+            current = dict(values=chosen["values"], free=tuple(chosen["free"]), law=chosen["law"],
+                           w=chosen["w"], ev_M=chosen["ev_M"], n_theta=len(chosen["free"]), chi2=chosen["chi2"],
+                           n_eff=chosen["n_eff"], bounds={**current.get("bounds", {}), **dict(eff.bounds)})
+        say(f"added {chosen['effect']} ({', '.join(eff.parameters) or eff.law}); trying the rest again")
+        if len(effects) >= opts.max_effects:
+            remaining = []
+        changed = False
+        if not adopted and (opts.resequence is True or (opts.resequence == "auto" and not _at_noise(chosen, opts))):
+            try:
+                current, runs, changed = _resequence(current, runs, fopts, prob, say)
+            except Exception as err:  # the named model stands with the baseline's sequence
+                notes.append(f"deciding the mode sequence again with {chosen['effect']} failed: "
+                             f"{type(err).__name__}: {err}")
+        if not remaining and not changed:
+            # nothing left to try: the final model is this candidate's refit, already
+            # measured on the same folds (a round of it alone refitted every held-out
+            # fold again: 8 exact refits, ~10 min, on the drift data), and no candidate
+            # is left for the verdict to judge
+            rounds.append([dict(final_res if adopted else chosen, effect=None, named=False)])
+            break
     final_prob, final_w = _rebuild(current, runs, fopts, prob)
     regime_final = _regime_check(current["law"], current["values"], regime_runs, notes)
     # runs the final model puts in another regime than their data: whatever the held-out
@@ -701,21 +693,17 @@ def _diagnose(data, *, coating, fit_options, options, baseline, executor, progre
     if regime_left:
         # the candidates at the final values (a pointer), the check at each one's magnitude
         # read on the runs left out, and where one makes them there, its profile on all runs
-        own, closer = (executor, None) if executor is not None else make_executor(opts.workers, opts.dask)
-        try:
-            screen = _final_screen(current, regime_runs, effects, opts, say, own)
-            if len(screen) > 1:
-                later.append(_screen_note(screen[0], screen[1:], at=SCREEN_AT_FINAL))
-            held = _held_evidence(rounds[-1] if rounds else [], effects, regime_final, current.get("chi2"))
-            held_txt = _held_note(held, len(regime_runs))
-            if held_txt:
-                later.append(held_txt)
-            profile = _profile_held(held, current, runs, fopts, opts, regime_runs, regime_final, own, say,
-                                    n_cand=len([c for c in (rounds[-1] if rounds else []) if c.get("effect")]),
-                                    confounded=confounded)
-        finally:
-            if closer is not None:
-                closer()
+        own = executor
+        screen = _final_screen(current, regime_runs, effects, opts, say, own)
+        if len(screen) > 1:
+            later.append(_screen_note(screen[0], screen[1:], at=SCREEN_AT_FINAL))
+        held = _held_evidence(rounds[-1] if rounds else [], effects, regime_final, current.get("chi2"))
+        held_txt = _held_note(held, len(regime_runs))
+        if held_txt:
+            later.append(held_txt)
+        profile = _profile_held(held, current, runs, fopts, opts, regime_runs, regime_final, own, say,
+                                n_cand=len([c for c in (rounds[-1] if rounds else []) if c.get("effect")]),
+                                confounded=confounded)
         if profile is not None:
             later.append(profile["note"])
         if profile is not None and profile.get("named"):
@@ -815,7 +803,7 @@ def _final_screen(current: dict, regime_runs: list, effects: list, opts: Diagnos
     largest slips agreeing), every other candidate parts from 2-4; ~15 s.
     Returns [current model's record, candidates' records...], or [] if the screen fails."""
     ids = [e for e in opts.effects if e not in effects]
-    own, closer = (executor, None) if executor is not None else make_executor(opts.workers, opts.dask)
+    own = executor
     try:
         say(f"regime screen at the final model's values: {len(regime_runs)} run(s) left out for their regime")
         cur, screen = regime_screen(ids, current["law"], current["free"], current["values"], regime_runs, say,
@@ -823,9 +811,6 @@ def _final_screen(current: dict, regime_runs: list, effects: list, opts: Diagnos
     except Exception as err:  # the screen is a pointer: the diagnosis stands without it
         say(f"regime screen failed: {type(err).__name__}: {err}")
         return []
-    finally:
-        if closer is not None:
-            closer()
     return [dict(cur)] + screen
 
 

@@ -12,7 +12,6 @@ from collections.abc import Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from identify import interrupts
 from identify.fitting.arcs import SHARE_FEAS, SOLVE_REL_STEP
 from identify.fitting.convergence import (
     FEAS_TOL,
@@ -215,7 +214,6 @@ class GaussNewtonSQP:
         own_check, trusted = False, False  # (shared steps trusted far out: see SHARE_FEAS)
         r, g = self.evaluate(w)
         for it in range(1, opts.max_iter + 1):
-            interrupts.check()
             self.last_iterate = (w, 0.5 * float(r @ r), float(np.abs(g).max()) if g.size else 0.0)
             if may_share:  # (SHARE_FEAS, per arc)
                 self.jacobian_scheme("forward", SOLVE_REL_STEP, share=self.near_continuity(g))
@@ -418,7 +416,8 @@ class GaussNewtonSQP:
                     status, success = self._stalled(it, r0, Jr, d_gn, g, damped=False)
                 break
         return dict(w=w, f=0.5 * float(r @ r), status=status, success=success, iterations=it,
-                    wall_s=time.perf_counter() - t0, central=refreshed, shared=self._cb_jac_shared())
+                    wall_s=time.perf_counter() - t0, central=refreshed, shared=self._cb_jac_shared(),
+                    max_violation=float(np.abs(g).max()) if g.size else 0.0)
 
     def _damping_reach(self, d, H, Jg, grad, g, free, Jr, dphi) -> tuple[float, float]:
         """How much the rest of the damping ladder could change a rejected step ``d``:

@@ -74,9 +74,9 @@ def test_interrupted_fit_exits_within_seconds_and_saves_its_best_point(tmp_path,
 
 
 def test_interrupted_diagnosis_keeps_its_record_and_resumes_from_it(tmp_path, strict_json):
-    cmd = [sys.executable, "-m", "identify", "diagnose", str(DATA), "--fix", "v_stick=1e-5", "--effects", "drift",
-           "--workers", "2", "--json", "diag.json"]
-    rc, after, err = _interrupt_when(cmd, "round 1:", tmp_path)
+    cmd = [sys.executable, "-m", "identify", "diagnose", str(DATA), "--fix", "v_stick=1e-5", "--effects",
+           "drift,damping", "--workers", "2", "--json", "diag.json"]
+    rc, after, err = _interrupt_when(cmd, "1/3 done", tmp_path)  # (a refit finished, two under way)
     assert rc == 130, err[-2000:]
     assert after < EXIT_WITHIN_S
     assert "Traceback" not in err
@@ -88,7 +88,7 @@ def test_interrupted_diagnosis_keeps_its_record_and_resumes_from_it(tmp_path, st
     assert "[diagnose] baseline fit\n" not in done.stderr  # (not fitted again)
     out = strict_json(tmp_path / "diag.json")
     assert out["verdict"] in ("adequate", "unexplained")
-    assert "refits_from_record" in out["timing"]
+    assert out["timing"]["refits_from_record"] >= 1  # (the finished refit was not done again)
 
 
 def test_a_record_refuses_other_inputs_and_drops_a_cut_last_entry(tmp_path):
