@@ -423,21 +423,76 @@ class FitResult:
         solved problem's plateau nodes: (frame times s, model elongation m, plateau index
         of each frame, -1 where a frame belongs to none)."""
         from identify.fitting.rundata import plateaus_from_triggers
+
+        ev, step, levels, offset = self._run_levels("model_elongation", i_run)
+        pof = plateaus_from_triggers(ev, self.problem.runs[i_run].trigger_steps)
+        e_model = np.full(len(ev.trace.time_s), np.nan)
+        ok = (pof >= 0) & (pof < len(levels))
+        e_model[ok] = step * ev.steps[ok] - levels[pof[ok]] + offset
+        return ev.trace.time_s, e_model, pof
+
+    def model_staircase(self, i_run: int) -> tuple[np.ndarray, np.ndarray]:
+        """The fitted model's elongation of run ``i_run`` as the staircase it is, at every
+        puller step rather than at the frames: (times s, elongation m), one point per
+        step from the trace's start to its end, each level held until the next time (draw
+        with ``drawstyle="steps-post"``). A slip drops the level at its trigger step; the
+        slip itself (milliseconds) is drawn as the vertical edge there."""
+        from identify.traces.events import step_counts
+
+        ev, step, levels, offset = self._run_levels("model_staircase", i_run)
+        tr = ev.trace
+        fp, phi = tr.step_frequency, ev.step_phase
+        t0, t1 = float(tr.time_s[0]), float(tr.time_s[-1])
+        n0, n1 = (int(v) for v in step_counts(np.array([t0, t1]), fp, phi))
+        n = np.arange(n0, n1 + 1)
+        t = np.maximum((n + phi) / fp, t0)
+        t = np.append(t, t1)  # the last level held to the last frame
+        n = np.append(n, n1)
+        idx = np.searchsorted(np.asarray(self.problem.runs[i_run].trigger_steps), n, side="right")
+        e = step * n - levels[np.clip(idx, 0, len(levels) - 1)] + offset
+        return t, e
+
+    def static_friction_curve(self, rest_time_s) -> tuple[np.ndarray, np.ndarray | None]:
+        """The fitted law's static friction coefficient after a rest of ``rest_time_s``
+        from a rejuvenated contact, as a slip sees it (ψ plus the stick band
+        A·ln(1 + v_stick/vc), zero without the stick option), and its 95 % pointwise band
+        from the covariance by the delta method on the fit's own scale: (μs, (2, n)
+        array of lower and upper bounds, or None where the fit has no covariance)."""
+        self._needs_problem("static_friction_curve")
+        prob, w = self.problem, self.w
+        t = np.asarray(rest_time_s, float)
+
+        def curve(th):
+            P = prob.params(th)
+            band = float(P["A"] * np.log1p(P["v_stick"] / P["vc"]))
+            return prob.law.static_coefficient(prob.law.rest(prob.law.rejuvenated_state(P), t, P), P) + band
+
+        th = np.asarray(w[: prob.n_theta], float)
+        mu = curve(th)
+        if self.covariance is None or not np.all(np.isfinite(self.covariance)):
+            return mu, None
+        d = self.problem.theta.jacobian_diag(th)
+        C = np.asarray(self.covariance) / np.outer(d, d)  # back to the scaled parameters
+        J = np.empty((len(t), len(th)))
+        for i in range(len(th)):
+            h = 1e-5 * max(1.0, abs(th[i]))
+            up, dn = th.copy(), th.copy()
+            up[i] += h
+            dn[i] -= h
+            J[:, i] = (curve(up) - curve(dn)) / (2 * h)
+        half = Z95 * np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, C, J), 0.0))
+        return mu, np.vstack([mu - half, mu + half])
+
+    def _run_levels(self, what: str, i_run: int):
+        """(events, fitted step m, plateau levels m, zero offset m) of run ``i_run``."""
         from identify.model.symbolic import LENGTH_UNIT
 
-        self._needs_problem("model_elongation")
+        self._needs_problem(what)
         prob, w = self.problem, self.w
-        rd = prob.runs[i_run]
-        ev = rd.events
         step = float(prob.model.step(prob.params(w[: prob.n_theta])))
-        x = w[prob.i_x + np.nonzero(prob.pl_run == i_run)[0]] * LENGTH_UNIT
-        pof = plateaus_from_triggers(ev, rd.trigger_steps)
-        e_model = np.full(len(ev.trace.time_s), np.nan)
-        ok = (pof >= 0) & (pof < len(x))
-        e_model[ok] = step * ev.steps[ok] - x[pof[ok]]
-        if prob.n_off:
-            e_model = e_model + w[prob.i_off + i_run] * LENGTH_UNIT
-        return ev.trace.time_s, e_model, pof
+        levels = w[prob.i_x + np.nonzero(prob.pl_run == i_run)[0]] * LENGTH_UNIT
+        offset = float(w[prob.i_off + i_run] * LENGTH_UNIT) if prob.n_off else 0.0
+        return prob.runs[i_run].events, step, levels, offset
 
     def save_plots(self, folder) -> list:
         from identify.plots.fit import save_fit_plots
