@@ -30,6 +30,7 @@ from identify import __version__
 from identify.cli import program_name
 from identify.fitting.stick_choice import STICK_SPEED_AUTO
 from identify.jsonio import write_json
+from identify.progress import cli_reporter
 
 __all__ = ["main", "build_parser"]
 
@@ -153,14 +154,9 @@ def _cmd_ranges(args: argparse.Namespace) -> int:
 
     _check_outputs(args)
 
-    def progress(done: int, total: int) -> None:
-        print(f"\r  {done}/{total} runs", end="", file=sys.stderr, flush=True)
-        if done == total:
-            print(file=sys.stderr)
-
     result = operating_ranges(
         args.spring_constant, args.coating, loads_uN=args.loads_uN, fps_Hz=args.fp,
-        travel_um=args.travel_um, stick_speed_m_per_s=args.stick_speed, progress=progress,
+        travel_um=args.travel_um, stick_speed_m_per_s=args.stick_speed, progress=cli_reporter("[ranges] "),
     )
     print(result.report())
     _write_outputs(args, result)
@@ -226,7 +222,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     if not springs or any(not (k > 0) for k in springs):
         raise ValueError(f"--springs {args.springs!r}: spring constants must be > 0")
     prior = prior_from_fit(args.prior, args.coating) if args.prior is not None else None
-    say = lambda msg: print(f"[experiment] {msg}", file=sys.stderr, flush=True)  # noqa: E731
+    say = cli_reporter("[experiment] ")
     if args.fp is not None and any(not (f > 0) for f in args.fp):
         raise ValueError(f"--fp {args.fp}: step frequencies must be > 0")
     cands = default_candidates(springs, args.travel_um, loads_uN=args.loads_uN,

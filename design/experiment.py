@@ -35,6 +35,7 @@ from identify.executors import stop_pool
 from identify.fitting.stick_choice import STICK_SPEED_AUTO
 from identify.interrupts import Interrupted
 from identify.jsonio import dumps
+from identify.progress import Stage, reporter
 
 __all__ = ["Candidate", "CRITERIA", "ExperimentPlan", "run_information", "run_information_parts", "run_problem",
            "design_experiment", "paper_plan", "prior_from_fit", "verify_plans"]
@@ -313,22 +314,82 @@ class ExperimentPlan:
         )
 
     def plot(self, ax=None):
-        """Predicted relative standard errors of the plan and the reference, per parameter."""
+        """Predicted relative standard errors of the plan and the reference, per parameter.
+
+        Markers on a log axis (no bars: a log axis has no zero to start a bar from); after
+        a verification, the Monte Carlo spreads beside them as open markers with their
+        95 % interval (χ² on the number of fits). A standard error that cannot be
+        determined is marked as such at the bottom. Legend (titled with the coating and run
+        count) above the axes.
+        """
+        import re
+        import textwrap
+
+        from identify.model.params import SPECS
         from identify.plots.base import pyplot
 
         plt = pyplot()
         if ax is None:
-            _, ax = plt.subplots(figsize=(5.5, 3.5), constrained_layout=True)
+            _, ax = plt.subplots(figsize=(6.5, 3.8), constrained_layout=True)
         x = np.arange(len(self.free))
-        rel = lambda se: [se[n] / abs(self.nominal[n]) for n in self.free]  # noqa: E731
-        ax.bar(x - 0.2, rel(self.predicted_stderr), 0.4, label=f"{self.criterion}-optimal plan")
-        ax.bar(x + 0.2, rel(self.reference_stderr), 0.4, label="paper's conditions")
-        if self.monte_carlo:
-            ax.plot(x - 0.2, rel(self.monte_carlo["plan_stderr"]), "kv", label="measured (Monte Carlo)")
-            ax.plot(x + 0.2, rel(self.monte_carlo["reference_stderr"]), "kv")
-        ax.set_xticks(x, self.free)
-        ax.set(yscale="log", ylabel="relative standard error", title=f"{self.coating}, {len(self.plan)} runs")
-        ax.legend(fontsize=7, frameon=False)
+
+        def rel(se) -> np.ndarray:
+            return np.array([se.get(n, np.nan) / abs(self.nominal[n]) for n in self.free], float)
+
+        def name(n: str) -> str:  # "μmax\nsaturated static\nfriction coefficient"
+            spec = SPECS.get(n)
+            if spec is None or not spec.description:
+                return n
+            text = re.sub(r"\s*\(Eq\.[^)]*\)\s*$", "", spec.description).split(": ", 1)[-1]
+            words, _, symbol = text.rpartition(" ")
+            return symbol + ("\n" + textwrap.fill(words, 13) if words else "")
+
+        mc = self.monte_carlo or {}
+        series = [("plan", f"{self.criterion}-optimal plan", self.predicted_stderr, "C0", "o"),
+                  ("reference", "paper's conditions", self.reference_stderr, "C1", "s")]
+        offsets = (-0.27, -0.09, 0.09, 0.27) if mc else (-0.12, 0.12)
+        shown: list[np.ndarray] = []
+        missing = []
+        for k, (key, label, se, colour, marker) in enumerate(series):
+            dx = offsets[2 * k] if mc else offsets[k]
+            y = rel(se)
+            ax.plot(x + dx, y, ls="", marker=marker, ms=7, color=colour, label=f"{label}: predicted")
+            shown.append(y)
+            missing += [(xi + dx, colour) for xi, yi in zip(x, y) if not (np.isfinite(yi) and yi > 0)]
+            if mc and f"{key}_stderr" in mc:
+                from scipy.stats import chi2
+
+                ym = rel(mc[f"{key}_stderr"])
+                n_fits = len(mc.get(f"{key}_estimates", ())) or int(mc.get("repeats", 0))
+                lo = hi = np.full_like(ym, np.nan)
+                if n_fits >= 2:
+                    lo = ym * np.sqrt((n_fits - 1) / chi2.ppf(0.975, n_fits - 1))
+                    hi = ym * np.sqrt((n_fits - 1) / chi2.ppf(0.025, n_fits - 1))
+                ok = np.isfinite(ym) & (ym > 0)
+                ax.errorbar(x[ok] + offsets[2 * k + 1], ym[ok],
+                            yerr=np.abs(np.vstack([ym - lo, hi - ym])[:, ok]), ls="", marker=marker,
+                            ms=7, mfc="white", color=colour, capsize=3, lw=1,
+                            label=f"{label}: measured, {n_fits} fits (95 % interval)")
+                shown += [lo[ok], hi[ok], ym[ok]]
+        ax.set_yscale("log")
+        vals = np.concatenate(shown) if shown else np.array([])
+        vals = vals[np.isfinite(vals) & (vals > 0)]
+        if vals.size:
+            ax.set_ylim(vals.min() / 3, vals.max() * 3)
+        for xm, colour in missing:
+            ax.text(xm, 0.02, "not determined", transform=ax.get_xaxis_transform(), rotation=90,
+                    ha="center", va="bottom", fontsize=8, color=colour)
+        ax.set_xticks(x, [name(n) for n in self.free], fontsize=8)
+        ax.set_xlim(-0.6, len(self.free) - 0.4)
+        ax.grid(axis="y", which="major", color="0.9", lw=0.8)
+        ax.set_axisbelow(True)
+        ax.set_ylabel("relative standard error\n(standard error / nominal value)")
+        # above the axes, so that it covers no marker whatever the values
+        handles, labels = ax.get_legend_handles_labels()
+        order = sorted(range(len(labels)), key=lambda i: "measured" in labels[i])
+        ax.legend([handles[i] for i in order], [labels[i] for i in order], fontsize=8,
+                  loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=2, frameon=False,
+                  title=f"{self.coating}, {len(self.plan)} runs per plan", title_fontsize=10)
         return ax
 
 
@@ -376,8 +437,12 @@ def design_experiment(n_runs: int, coating: str = "FOTAS", *, springs: Sequence[
                       free: Sequence[str] = DEFAULT_FREE, prior_information: np.ndarray | None = None,
                       noise_nm: float = 90.0, stick_speed_m_per_s: float = STICK_SPEED, travel_um: float = 30.0,
                       max_enumerate: int = 20000, reference: Sequence[Candidate] | None = None,
-                      progress: Callable[[str], None] | None = None) -> ExperimentPlan:
-    """Choose ``n_runs`` runs from the candidate grid that optimise ``criterion``."""
+                      progress: Callable[[str], None] | bool | None = None) -> ExperimentPlan:
+    """Choose ``n_runs`` runs from the candidate grid that optimise ``criterion``.
+
+    ``progress`` (:mod:`identify.progress`): None draws a bar of the candidates'
+    simulations with the time left on a terminal, False is silent, a callable gets each
+    message."""
     from identify.model.params import parameter_set
 
     if criterion not in CRITERIA:
@@ -387,7 +452,7 @@ def design_experiment(n_runs: int, coating: str = "FOTAS", *, springs: Sequence[
     free = tuple(free)
     nominal = {n: float(parameter_set(coating)[n]) for n in free}
     scale = np.array([abs(nominal[n]) for n in free])
-    say = progress or (lambda msg: None)
+    say = reporter(progress) or (lambda msg: None)
     cands = list(candidates) if candidates is not None else default_candidates(springs, travel_um)
     ref = list(reference) if reference is not None else paper_plan(n_runs, travel_um)
     infos: dict = {}
@@ -404,9 +469,10 @@ def design_experiment(n_runs: int, coating: str = "FOTAS", *, springs: Sequence[
             infos[c] = (B, M, s)
         return infos[c][:2]
 
-    for i, c in enumerate(cands, 1):
-        say(f"information of candidate {i}/{len(cands)}: {c.label()}")
+    stage = Stage(say, "information of the candidates", len(cands))
+    for c in cands:
         info_of(c)
+        stage.advance(c.label())
     for c in ref:
         info_of(c)
     I0 = np.zeros((len(free),) * 2) if prior_information is None else np.asarray(prior_information, float)
@@ -531,7 +597,7 @@ def _fit_plan(plan, coating, free, noise_nm, stick, seed, jitter=0.0):
         traces.append(sim.sample(noise_nm=noise_nm, seed=10_000 * seed + i, name=f"run{i}"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = fit(traces, coating=coating, options=_fit_options(free, stick))
+        res = fit(traces, coating=coating, options=_fit_options(free, stick), progress=False)
     return dict(estimates={n: res[n].value for n in free},
                 stderr={n: res[n].stderr for n in free},
                 ci95={n: list(res[n].ci95) if res[n].ci95 else None for n in free})
@@ -594,11 +660,13 @@ def _job_order(keys: tuple[str, ...], repeats: int, seed: int, done) -> list[tup
 
 def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm: float = 90.0,
                  stick_speed_m_per_s: float = STICK_SPEED, workers: int = 1,
-                 progress: Callable[[str], None] | None = None, record: str | Path | None = None,
+                 progress: Callable[[str], None] | bool | None = None, record: str | Path | None = None,
                  jitter_load: float = JITTER_LOAD) -> dict:
     """Simulate and identify the plan and the reference ``repeats`` times each (seeded
     noise, repeat r uses seed + r for both plans); the measured spread of the estimates
-    per parameter. Fits run in ``workers`` processes.
+    per parameter. Fits run in ``workers`` processes. ``progress``
+    (:mod:`identify.progress`): None draws a bar of the fits with the time left on a
+    terminal, False is silent, a callable gets each message.
 
     ``jitter_load``: each repeat draws every run's load within ± this fraction of its
     nominal value (the trace carries the drawn load), as real replicates differ; it
@@ -620,7 +688,7 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
     """
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    say = progress or (lambda msg: None)
+    say = reporter(progress) or (lambda msg: None)
     runs_of = {"plan_stderr": plan.plan, "reference_stderr": plan.reference_plan}
     context = _record_context(plan, noise_nm, stick_speed_m_per_s, jitter_load)
     done = _load_record(record, context)
@@ -642,7 +710,8 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
     try:
         futs = {ex.submit(_fit_plan, runs_of[key], plan.coating, plan.free, noise_nm, stick_speed_m_per_s,
                           seed + r, jitter_load): (key, r) for key, r in jobs}
-        for i, f in enumerate(as_completed(futs), 1):
+        stage = Stage(say, "verification fits", len(jobs))
+        for f in as_completed(futs):
             key, r = futs[f]
             try:
                 row = dict(key=key, seed=seed + r, context=context[key], **f.result())
@@ -653,7 +722,7 @@ def verify_plans(plan: ExperimentPlan, repeats: int, *, seed: int = 0, noise_nm:
             if fh is not None:
                 fh.write(dumps(row, indent=None) + "\n")
                 fh.flush()
-            say(f"verification: {i}/{len(jobs)} fits done")
+            stage.advance(f"{key.split('_')[0]} repeat {r + 1}" + (" failed" if "error" in row else ""))
     except KeyboardInterrupt:
         stop_pool(ex)
         kept = f"; the {len(rows)} finished fit(s) are in {record}, and a rerun with it resumes" if record else ""

@@ -51,16 +51,19 @@ def plot_feasible_region(ax=None, *, k_limits_N_per_m: tuple[float, float] = (3e
     k = np.geomspace(tc.K_MIN.bound, tc.K_MAX.bound, 400)
     lo, hi = tc.allowed_load_range(k)
     ok = np.isfinite(lo)
-    ax.fill_between(k[ok], lo[ok] * _UN, hi[ok] * _UN, color=color, lw=0, label="Table I allowed")
+    ax.fill_between(k[ok], lo[ok] * _UN, hi[ok] * _UN, color=color, lw=0,
+                    label=f"allowed by Table I for every μ in [{tc.MU_MIN.bound:g}, {tc.MU_MAX.bound:g}]")
     if boundaries:
         kk = np.geomspace(*k_limits_N_per_m, 50)
         lo_e, hi_e = tc.elongation_window(kk, kk)
-        ax.plot(kk, lo_e * _UN, color="0.5", lw=0.8, ls=":")
-        ax.plot(kk, hi_e * _UN, color="0.5", lw=0.8, ls=":")
+        style = dict(color="0.5", lw=0.8, ls=":")
+        ax.plot(kk, lo_e * _UN, **style,
+                label="Table I limits: k, Nb, 90 nm resolution at μ = 0.1, 100 µm travel at μ = 0.9")
+        ax.plot(kk, hi_e * _UN, **style)
         for c in (tc.LOAD_MIN, tc.LOAD_MAX):
-            ax.axhline(c.bound * _UN, color="0.5", lw=0.8, ls=":")
+            ax.axhline(c.bound * _UN, **style)
         for c in (tc.K_MIN, tc.K_MAX):
-            ax.axvline(c.bound, color="0.5", lw=0.8, ls=":")
+            ax.axvline(c.bound, **style)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlim(*k_limits_N_per_m)
@@ -109,35 +112,57 @@ def plot_spring_set(
 def plot_design(result, ax=None):
     """Fig. 3 with an optimised set, the paper's set and the requested load range.
 
+    The legend sits right of the axes (it covers no line); the requested-range lines are
+    drawn over the springs' end caps they may coincide with.
+
     Returns
     -------
     matplotlib Axes
     """
+    from matplotlib.lines import Line2D
+
+    def wrap(text: str) -> str:
+        return _wrap(text, 30)
+
     ax = plot_feasible_region(ax)
     lo, hi = result.load_range
     for y in (lo, hi):
-        ax.axhline(y * _UN, color="C3", lw=1, ls="--")
-    ax.plot([], [], color="C3", lw=1, ls="--", label="requested range")
+        ax.axhline(y * _UN, color="C3", lw=1, ls="--", zorder=4)
+
     def ks(s) -> str:
         return ", ".join(f"{k:.3g}" for k in s.spring_constants) + " N/m"
 
     plot_spring_set(result.reference, ax, color="0.35", linestyle="--",
-                    label="paper: " + ks(result.reference))
-    plot_spring_set(result.spring_set, ax, color="C0", label="optimised: " + ks(result.spring_set))
-    ax.legend(loc="upper left", fontsize="small")
-    ax.set_title(
-        f"Table I region, etch bias ±{result.etch_bias_um:g} µm per edge", fontsize="medium"
-    )
+                    label=wrap("paper's set: " + ks(result.reference)))
+    plot_spring_set(result.spring_set, ax, color="C0", label=wrap("optimised set: " + ks(result.spring_set)))
+    handles, _ = ax.get_legend_handles_labels()
+    for h in handles:
+        if h.get_label().startswith("Table I limits"):
+            h.set_label(wrap(h.get_label()))
+        elif h.get_label().startswith("allowed"):
+            h.set_label(wrap(h.get_label()))
+    handles.append(Line2D([], [], color="C3", lw=1, ls="--",
+                          label=wrap(f"requested load range ({lo * _UN:.3g}-{hi * _UN:.3g} µN)")))
+    springs = {h: _HandlerSpring() for h in handles if h.get_label().endswith("N/m")}
+    ax.legend(handles=handles, handler_map=springs, loc="upper left", bbox_to_anchor=(1.02, 1.0),
+              fontsize=8, handleheight=1.6, alignment="left", title_fontsize=8,
+              title=wrap("each spring: a bar over the loads it resolves for every μ, end caps "
+                         f"over its k range at etch bias ±{result.etch_bias_um:g} µm"))
+    ax.set_title(f"Spring sets in the Table I region, etch bias ±{result.etch_bias_um:g} µm per edge",
+                 fontsize="medium")
     return ax
 
 
 def plot_operating_ranges(ranges, ax=None):
     """Regime map of one spring over (fp, Nb) with its usable points (issue 4, item 4).
 
-    Cells are coloured by the simulated regime (:func:`identify.plots.base.plot_regime_map`;
-    white where the camera rule excluded fp before simulating). Cells excluded by a rule
-    other than the regime are hatched (``xx`` camera, ``//`` slip length, slip count or
-    Table I); usable cells carry a dot. Dashed lines: the spring's Table I Nb limits.
+    Cells are coloured by the simulated regime (:func:`identify.plots.base.plot_regime_map`).
+    Cells excluded by a rule other than the regime are hatched: ``..`` camera too slow (white,
+    not simulated), ``//`` slips too short or too few, ``\\\\`` load outside the spring's
+    Table I range (a cell failing both shows both, which no single hatch looks like).
+    Usable cells carry a dot, drawn above every line. Dashed lines: the spring's Table I
+    Nb limits that fall on the grid (the legend gives both values; the axes stay on the
+    grid's cells).
 
     Returns
     -------
@@ -148,38 +173,79 @@ def plot_operating_ranges(ranges, ax=None):
 
     from identify.plots.base import plot_regime_map
 
+    def wrap(text: str) -> str:
+        return _wrap(text, 28)
+
     ax = _axes(ax)
     # OperatingRanges carries the attributes plot_regime_map reads from a RegimeMap.
     plot_regime_map(ranges, ax=ax)
+    old = ax.get_legend()
+    regimes = [h for h in (old.legend_handles if old is not None else [])
+               if h.get_label() != "not simulated"]
+    if old is not None:
+        old.remove()
     fe, le = _cell_edges(ranges.step_frequencies_Hz), _cell_edges(ranges.normal_loads_uN)
+    hatch_of = {"camera": "..", "slip_length": "//", "slip_count": "//", "table_i": "\\\\"}
     seen = set()
     for i, nb in enumerate(ranges.normal_loads_uN):
         for j, fp in enumerate(ranges.step_frequencies_Hz):
             rules = [r for r, _ in ranges.failed[i, j]]
             if not rules:
-                ax.plot(fp, nb, "o", color="k", mec="w", ms=5)
+                ax.plot(fp, nb, "o", color="k", mec="w", ms=6, zorder=5)
                 seen.add("usable")
-            elif rules != ["regime"]:
-                hatch = "xx" if "camera" in rules else "//"
+            for hatch in dict.fromkeys(hatch_of[r] for r in rules if r in hatch_of):
                 ax.add_patch(Rectangle((fe[j], le[i]), fe[j + 1] - fe[j], le[i + 1] - le[i],
-                                       fill=False, lw=0, ec="0.2", hatch=hatch))
+                                       fill=False, lw=0, ec="0.15", hatch=hatch, zorder=2))
                 seen.add(hatch)
     lo, hi = ranges.normal_load_range_uN
     for y in (lo, hi):
-        ax.axhline(y, color="k", lw=1.2, ls="--")
-    y0, y1 = ax.get_ylim()
-    ax.set_ylim(min(y0, lo / 1.3), max(y1, hi * 1.3))
-    old = ax.get_legend()
-    handles = list(old.legend_handles) if old is not None else []
+        if le[0] <= y <= le[-1]:
+            ax.axhline(y, color="k", lw=1.2, ls="--", zorder=3)
+    r = ranges.rules
     extra = {
-        "//": Patch(fill=False, hatch="//", ec="0.2", label="excluded: slip, count or Table I"),
-        "xx": Patch(fill=False, hatch="xx", ec="0.2", label="excluded: camera (not simulated)"),
-        "usable": Line2D([], [], ls="", marker="o", color="k", mec="w", label="usable"),
+        "usable": Line2D([], [], ls="", marker="o", ms=6, color="k", mec="w",
+                         label="usable (every rule holds)"),
+        "//": Patch(fill=False, hatch="//", ec="0.15",
+                    label=wrap(f"excluded: slips shorter than {r.min_slip_m * 1e9:g} nm or fewer "
+                               f"than {r.min_slips} slips in {ranges.travel_um:g} µm of travel")),
+        "\\\\": Patch(fill=False, hatch="\\\\", ec="0.15",
+                      label=wrap("excluded: load outside the spring's Table I range")),
+        "..": Patch(fill=False, hatch="..", ec="0.15",
+                    label=wrap(f"not simulated: camera too slow above {r.max_step_frequency_Hz:g} Hz")),
     }
-    handles += [h for key, h in extra.items() if key in seen]
-    handles.append(Line2D([], [], ls="--", color="k", label="Table I Nb limits"))
-    ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    handles = regimes + [h for key, h in extra.items() if key in seen]
+    handles.append(Line2D([], [], ls="--", color="k", lw=1.2,
+                          label=wrap(f"Table I load limits ({lo:.3g} and {hi:.3g} µN)")))
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     return ax
+
+
+def _wrap(text: str, width: int) -> str:
+    """Wrap a legend label, never between a number and its unit."""
+    import textwrap
+
+    for unit in ("µN", "µm", "nm", "N/m", "Hz"):
+        text = text.replace(" " + unit, "\u00a0" + unit)
+    return textwrap.fill(text, width)
+
+
+def _HandlerSpring():
+    """Legend handler drawing a spring as the plot does: a bar with end caps (an 'I')."""
+    from matplotlib.legend_handler import HandlerBase
+    from matplotlib.lines import Line2D
+
+    class Handler(HandlerBase):
+        def create_artists(self, legend, orig_handle, xdescent, ydescent, width, height,
+                           fontsize, trans):
+            x, y0, y1 = width / 2 - xdescent, -ydescent, height - ydescent
+            c = orig_handle.get_color()
+            bar = Line2D([x, x], [y0, y1], color=c, lw=orig_handle.get_linewidth(),
+                         ls=orig_handle.get_linestyle(), transform=trans)
+            caps = [Line2D([x - width / 4, x + width / 4], [y, y], color=c, lw=1.5, transform=trans)
+                    for y in (y0, y1)]
+            return [bar, *caps]
+
+    return Handler()
 
 
 def _cell_edges(v: np.ndarray) -> np.ndarray:

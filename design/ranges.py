@@ -289,7 +289,7 @@ def operating_ranges(
     min_slips: int = 20,
     max_frame_rate_Hz: float = 10_000.0,
     frames_per_step: float = 2.0,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[str], None] | bool | None = None,
 ) -> OperatingRanges:
     """Simulate a (Nb, fp) grid for one spring and mark where runs are usable.
 
@@ -311,8 +311,9 @@ def operating_ranges(
         takes (1e-5), so that the two design commands call each condition alike.
     min_slip_m, min_slips, max_frame_rate_Hz, frames_per_step
         See :class:`UsabilityRules`.
-    progress : callable(done, total), optional
-        Called after each simulated run.
+    progress : callable, False or None
+        Where the simulations are reported (:mod:`identify.progress`): None draws a bar
+        with the time left on a terminal, False is silent, a callable gets each message.
 
     Returns
     -------

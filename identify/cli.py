@@ -28,6 +28,7 @@ from pathlib import Path
 
 from identify import interrupts
 from identify.jsonio import write_json
+from identify.progress import cli_reporter
 
 from . import __version__
 
@@ -161,13 +162,8 @@ def _add_regimes(sub):
 def _cmd_regimes(args) -> int:
     from identify.simulation.regimes import regime_map
 
-    def progress(i, n):
-        print(f"\r  {i}/{n} runs", end="", file=sys.stderr, flush=True)
-        if i == n:
-            print(file=sys.stderr)
-
     m = regime_map(args.coating, args.spring_constant, args.loads_uN, args.fp, args.travel_um,
-                   args.stick_speed, progress=progress)
+                   args.stick_speed, progress=cli_reporter("[regimes] "))
     print(m.table())
     if args.json:
         print(f"wrote {write_json(args.json, m.to_json())}")
@@ -301,9 +297,9 @@ def _run_fit(args, data, true_values=None) -> int:
     for name in profiles:  # (before the fit, not after it)
         if name not in opts.free:
             raise CLIError(f"--profile {name}: not a free parameter ({', '.join(opts.free)})")
+    say = cli_reporter("[fit] ")
     try:
-        res = fit(data, coating=args.coating, options=opts, true_values=true_values,
-                  progress=lambda msg: print(f"[fit] {msg}", file=sys.stderr, flush=True))
+        res = fit(data, coating=args.coating, options=opts, true_values=true_values, progress=say)
     except interrupts.Interrupted as err:
         return _save_interrupted(err, Path(args.json).with_suffix(".interrupted.json"))
     # the fit is saved before any optional extra work, so nothing computed is lost
@@ -312,8 +308,7 @@ def _run_fit(args, data, true_values=None) -> int:
     for name in profiles:
         try:
             with interrupts.honoured():
-                res = res.with_profiles(res.profile(name, progress=lambda msg: print(f"[fit] {msg}",
-                                                                                     file=sys.stderr, flush=True)))
+                res = res.with_profiles(res.profile(name, progress=say))
         except KeyboardInterrupt:
             before = " and the profiles before it" if name != profiles[0] else ""
             print(f"interrupted during the profile of {name}: saved the fit{before} in {args.json}", file=sys.stderr)
@@ -428,7 +423,7 @@ def _cmd_diagnose(args) -> int:
                              workers=args.workers, dask=args.dask, seed=args.seed or 0,
                              resequence={"auto": "auto", "always": True, "never": False}[args.resequence],
                              record=args.record or str(Path(args.json).with_suffix(".record")), resume=args.resume)
-    say = lambda msg: print(f"[diagnose] {msg}", file=sys.stderr, flush=True)  # noqa: E731
+    say = cli_reporter("[diagnose] ")
     try:
         res = diagnose(args.data, coating=args.coating, fit_options=_fit_options(args), options=dopts, progress=say)
     except interrupts.Interrupted as err:

@@ -32,6 +32,7 @@ from collections.abc import Callable, Sequence
 
 from identify.executors import InProcess
 from identify.model.effects import get_effect
+from identify.progress import Stage
 
 __all__ = ["moved_text", "own_moves", "own_screen", "parting", "regime_screen", "screen_one", "smallest_moves"]
 
@@ -180,19 +181,21 @@ def _run_all(tasks, label, say, executor, record) -> dict:
     never sinks the screen."""
     ex = executor if executor is not None else InProcess()
     recs, futs = {}, {}
+    stage = Stage(say, "regime screen", len(tasks))
 
     def collect(fut, key):
         try:
             recs[key] = fut.result()
         except Exception as err:  # a lost worker: that task is not screened
             recs[key] = record(key, error=f"{type(err).__name__}: {err}")
-        say(f"regime screen: {len(recs)}/{len(tasks)} done: {label(key)}")
+        stage.advance(str(label(key)))
 
     for key, args in tasks:
         try:
             fut = ex.submit(screen_one, *args)
         except Exception as err:  # a broken pool: that task is not screened
             recs[key] = record(key, error=f"{type(err).__name__}: {err}")
+            stage.advance(f"{label(key)}: not submitted")
             continue
         if fut.done():  # (in process: already run, said as it goes)
             collect(fut, key)

@@ -30,6 +30,7 @@ from identify.model.laws import get_law
 from identify.model.params import parameter_set, spec
 from identify.model.plausible import check_parameters
 from identify.model.symbolic import Model
+from identify.progress import Stage, reporter
 
 __all__ = ["FitOptions", "fit", "FitError", "RunData", "prepare_runs", "decide_sequence"]
 
@@ -808,7 +809,7 @@ def _suspect(prob, res, noise_p: float | None = None) -> str:
 
 
 def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
-        true_values: Mapping[str, float] | None = None, progress: Callable[[str], None] | None = None):
+        true_values: Mapping[str, float] | None = None, progress: Callable[[str], None] | bool | None = None):
     """Identify the friction parameters from recorded runs.
 
     Parameters
@@ -821,6 +822,10 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
     options : FitOptions
     true_values : dict, optional
         Shown beside the estimates in the report (synthetic data).
+    progress : callable, False or None
+        Where the fit reports what it is doing (:mod:`identify.progress`): None draws a
+        bar with the time left for its counted stages (solver starts) on a terminal and
+        logs otherwise; False is silent; a callable gets each message.
 
     Returns
     -------
@@ -834,6 +839,7 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         On Ctrl-C (a ``KeyboardInterrupt``): its ``saved`` holds the best point reached
         so far (parameters, χ², the solver's status), or None if no solve had begun.
     """
+    progress = reporter(progress)
     with interrupts.honoured(), best_so_far.watching() as seen:
         try:
             return _fit(data, coating=coating, options=options, true_values=true_values, progress=progress)
@@ -852,7 +858,7 @@ def _fit(data, *, coating, options, true_values, progress):
     # the interval encoding is a last solve from the uniform encoding's solution, which
     # decides everything before it (see FitOptions.trigger)
     opts = replace(final_opts, trigger="uniform")
-    say = progress or (lambda msg: log.info(msg))
+    say = progress or (lambda msg: None)
     wall0 = time.perf_counter()
     items = [data] if isinstance(data, (str, bytes)) or hasattr(data, "__fspath__") else list(data)
     say(f"loading {len(items)} input(s) and extracting events")
@@ -972,16 +978,22 @@ def _fit(data, *, coating, options, true_values, progress):
     # full tolerance; the values of several starts are compared, so each is solved fully
     loose = opts.multistart == 0
 
-    def solve_from(w, label, loose=loose):
-        say(f"solving: {label}")
+    def solve_from(w, label, loose=loose, stage=None):
+        if stage is None:
+            say(f"solving: {label}")
         try:
             results.append(dict(prob.solve(w, loose=loose), start_w=w))
         except Exception as err:
             results.append(dict(w=w, f=np.inf, status=f"failed: {err}", success=False, iterations=0, wall_s=0.0,
                                 start_w=w))
+        if stage is not None:
+            stage.advance(f"{label}: {results[-1]['status']}")
 
+    stage = Stage(say, "solver starts", len(starts)) if len(starts) > 1 else None
+    if stage is not None:
+        stage.start(f"{len(starts)} starts ({opts.multistart} random)")
     for i, w in enumerate(starts):
-        solve_from(w, f"start {i + 1} of {len(starts)}")
+        solve_from(w, f"start {i + 1} of {len(starts)}", stage=stage)
     best = min(results, key=lambda r: r["f"])
     # the start's χ² does not say where a solve will end, so a suspect solution gets a
     # second opinion from the start that was not taken. Measured: from a staged start that
@@ -1017,9 +1029,11 @@ def _fit(data, *, coating, options, true_values, progress):
         auto = _spread_starts(prob, best["w"], opts.auto_starts,
                               np.random.default_rng(opts.seed if opts.seed is not None else AUTO_SEED), preset)
         n_before = len(results)
+        stage = Stage(say, "spread starts", len(auto))
+        stage.start(f"the fit looks wrong ({why}): {len(auto)} starts spread over the plausible ranges")
         for i, w in enumerate(auto):
             # (the problem now carries the decided sequence: solved to the full tolerance)
-            solve_from(w, f"the fit looks wrong ({why}); spread start {i + 1} of {len(auto)}", loose=False)
+            solve_from(w, f"spread start {i + 1} of {len(auto)}", loose=False, stage=stage)
         rivals = [r for r in results[n_before:] if r.get("success") and np.isfinite(r["f"])]
         new_best = min(results[n_before:], key=lambda r: r["f"])
         kept = new_best["f"] < best["f"] - SAME_SOLUTION_TOL
@@ -1105,7 +1119,7 @@ def _stick_by_likelihood(result, data, coating, final_opts, true_values, progres
     try:
         other = fit(data, coating=coating, options=replace(final_opts, fixed={**final_opts.fixed,
                                                                                 "v_stick": STICK_SPEED_AUTO}),
-                    true_values=true_values, progress=progress)
+                    true_values=true_values, progress=progress or False)
     except FitError as err:
         result.solver["stick_option"] += f"; with v_stick = {STICK_SPEED_AUTO:g} m/s the fit failed: {err}"
         _flag_stick_dependence(result)

@@ -18,6 +18,7 @@ import numpy as np
 
 from identify.fitting.convergence import message
 from identify.model.params import SPECS
+from identify.progress import Stage, reporter
 
 __all__ = ["ParameterEstimate", "FitResult", "Profile", "build_result", "profile"]
 
@@ -691,7 +692,11 @@ def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0,
     when the covariance is scaled) between two points, the bracket is bisected
     ``REFINE_STEPS`` times before the crossing is interpolated. A side with no crossing
     is open: the data do not bound the parameter that way.
+
+    ``progress`` (:mod:`identify.progress`): None draws a bar of the points with the time
+    left on a terminal, False is silent, a callable gets each message.
     """
+    progress = reporter(progress)
     prob = result.problem
     if prob is None or result.w is None:
         raise ValueError("profile: this result carries no problem (read from JSON?)")
@@ -716,6 +721,9 @@ def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0,
     sols = {th0: w_best}
     failed: list = []
     count = [0]
+    # the points to solve: the grid, then up to REFINE_STEPS bisections per side; a side
+    # that crosses early skips the rest of its grid, one that does not cross adds points
+    stage = Stage(progress, f"profile of {name}", len(grid) - 1 + 2 * REFINE_STEPS)
 
     def point(w, val, note):
         """Δχ² with the parameter held at ``val``, warm-started from ``w``; the solution,
@@ -724,8 +732,7 @@ def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0,
         w[i] = val
         res = prob.solve(w, fixed={i: val})
         count[0] += 1
-        if progress:
-            progress(f"profile {name}: {note}")
+        stage.advance(note)
         rr = prob.residuals(res["w"])
         if not res.get("success") or not np.all(np.isfinite(rr)):
             failed.append(val)
@@ -741,11 +748,12 @@ def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0,
     for direction in (+1, -1):
         side = grid[grid > th0] if direction > 0 else grid[grid < th0][::-1]
         w = w_best
-        for val in side:
-            got = point(w, val, f"{count[0] + 1}/{len(grid) - 1}")
+        for k, val in enumerate(side):
+            got = point(w, val, f"{name} held at {tm.scale[i] * (math.exp(val) if tm.log[i] else val):.4g}")
             w = got if got is not None else _nearest_out(sols, th0, val)
             if got is not None and out[val] >= thr:
-                break  # (the points beyond add nothing to the interval)
+                stage.total -= len(side) - k - 1  # (the points beyond add nothing to the interval)
+                break
         val = side[-1] if len(side) else th0
         for _ in range(MAX_EXTEND):
             if any(out[v] >= thr for v in beyond(direction)):
@@ -758,12 +766,14 @@ def profile(result: FitResult, name: str, n_points: int = 13, span: float = 4.0,
             if nxt == val:
                 break
             val = nxt
+            stage.total += 1
             point(sols[far], val, f"extending to {val:.4g} (scaled)")
         # refine the bracket where Δχ² crosses the threshold
-        for _ in range(REFINE_STEPS):
+        for step in range(REFINE_STEPS):
             pts = sorted((v for v in out if direction * (v - th0) >= 0), key=lambda v: direction * (v - th0))
             br = next(((a, b) for a, b in zip(pts, pts[1:]) if out[a] < thr <= out[b]), None)
             if br is None:
+                stage.total -= REFINE_STEPS - step
                 break
             a, b = br
             point(sols[a], 0.5 * (a + b), f"refining the 95% crossing at {0.5 * (a + b):.4g} (scaled)")

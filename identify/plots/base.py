@@ -111,36 +111,67 @@ def plot_simulation(result, axes: Sequence | None = None, t_window: tuple[float,
     ax[0].plot(tm, xp * 1e6, color="0.5", label="puller $x_p$")
     ax[0].plot(tm, x * 1e6, color="C0", label="block $x$")
     ax[0].set_ylabel("position (µm)")
-    ax[0].legend(loc="upper left", fontsize=8)
-    ax[1].plot(tm, v * 1e2, color="C1")
-    ax[1].set_ylabel("velocity (cm/s)")
+    # cm/s for slips; a creeping block (well under 1 mm/s) in µm/s, not as 0.0004 cm/s
+    vmax = float(np.nanmax(np.abs(v))) if v.size else 0.0
+    v_scale, v_unit = (1e2, "cm/s") if vmax >= 1e-3 else (1e6, "µm/s")
+    ax[1].plot(tm, v * v_scale, color="C1")
+    ax[1].set_ylabel(f"velocity ({v_unit})")
     ax[2].plot(tm, e * 1e6, color="C2")
-    ax[2].set_ylabel("elongation (µm)")
-    ax[3].plot(tm, psi, color="C3")
-    ax[3].axhline(P.get("mu_min", np.nan), color="0.6", ls=":", lw=0.8)
-    ax[3].axhline(P.get("mu_max", np.nan), color="0.6", ls=":", lw=0.8)
-    ax[3].set_ylabel(r"state $\psi$")
-    ax[4].plot(tm, cap * 1e6, color="C3", label=r"friction capacity $F_0=\mu N_b$")
-    ax[4].plot(tm, spring * 1e6, color="C2", ls="--", label=r"spring force $k e$")
+    ax[2].set_ylabel("spring elongation (µm)")
+    ax[3].plot(tm, psi, color="C3", label=r"state $\psi$")
+    bounds = [P.get(n, np.nan) for n in ("mu_min", "mu_max")]
+    for b, lab in zip(bounds, (r"limits $\mu_{min}$, $\mu_{max}$", None)):
+        ax[3].axhline(b, color="0.45", ls=":", lw=1, label=lab)
+    ax[3].set_ylabel("friction state ψ (–)")
+    # the capacity wide under the spring force: where they are equal (slips, creep) both show
+    ax[4].plot(tm, cap * 1e6, color="C3", lw=2.0, zorder=2, label=r"friction capacity $F_0=\mu N_b$")
+    ax[4].plot(tm, spring * 1e6, color="C2", lw=1.0, zorder=3, label=r"spring force $k\,e$")
     ax[4].set_ylabel("force (µN)")
     ax[4].set_xlabel("time (ms)")
-    ax[4].legend(loc="upper left", fontsize=8)
-    for a, letter in zip(ax, "abcde"):
-        a.text(0.99, 0.92, f"({letter})", transform=a.transAxes, ha="right", va="top", fontsize=9)
+    # Each panel keeps a band above its data for the panel letter and the legend, so that
+    # neither covers a curve whatever the run (the band is sized in points).
+    fig = ax[0].figure
+    for a, letter, extra in zip(ax, "abcde", ([], [], [], bounds, [])):
+        ys = [ln.get_ydata() for ln in a.get_lines() if len(ln.get_xdata()) > 2] + [np.asarray(extra, float)]
+        y = np.concatenate([np.ravel(np.asarray(v, float)) for v in ys])
+        y = y[np.isfinite(y)]
+        if y.size:
+            lo, hi = float(y.min()), float(y.max())
+            r = hi - lo if hi > lo else max(abs(hi), 1e-12)
+            h_pt = a.get_position().height * fig.get_figheight() * 72 * 0.85
+            top = min(max(1 - 24 / max(h_pt, 1.0), 0.55), 0.85)  # data below this fraction
+            span = r / (top - 0.04)
+            a.set_ylim(lo - 0.04 * span, lo - 0.04 * span + span)
+        a.text(0.005, 0.98, f"({letter})", transform=a.transAxes, ha="left", va="top", fontsize=9,
+               fontweight="bold")
+        if a.get_legend_handles_labels()[0]:
+            a.legend(loc="upper right", fontsize=8, ncol=2, frameon=False, borderaxespad=0.2,
+                     handlelength=1.6, columnspacing=1.2)
     ax[0].set_title(
-        f"{result.coating or ''} k = {c.spring_constant:g} N/m, $N_b$ = {c.normal_load * 1e6:g} µN, "
-        f"$f_p$ = {c.step_frequency:g} Hz ({result.regime})", fontsize=10,
+        f"{result.coating + ', ' if result.coating else ''}k = {c.spring_constant:g} N/m, "
+        f"$N_b$ = {c.normal_load * 1e6:g} µN, $f_p$ = {c.step_frequency:g} Hz (regime: {result.regime})",
+        fontsize=10,
     )
     return axes
 
 
 def plot_regime_map(rmap, ax=None):
-    """Regimes over (Nb, fp) for one spring, as coloured cells on log axes."""
+    """Regimes over (Nb, fp) for one spring, as coloured cells on log axes.
+
+    One cell per grid point, centred on it; the ticks sit at the grid values (thinned
+    where their labels would touch, the rest as minor ticks). White cells were not
+    simulated. The legend, right of the axes, names the regimes present.
+    """
+    from matplotlib import rcParams
+    from matplotlib.font_manager import FontProperties
+    from matplotlib.patches import Patch
+    from matplotlib.ticker import FixedLocator, Locator, NullFormatter
+
     plt = pyplot()
     if ax is None:
         _, ax = plt.subplots(figsize=(5.5, 4), constrained_layout=True)
-    loads = rmap.normal_loads_uN
-    freqs = rmap.step_frequencies_Hz
+    loads = np.asarray(rmap.normal_loads_uN, float)
+    freqs = np.asarray(rmap.step_frequencies_Hz, float)
 
     def edges(v):
         lv = np.log10(v)
@@ -148,6 +179,35 @@ def plot_regime_map(rmap, ax=None):
         d0 = (lv[1] - lv[0]) / 2 if len(lv) > 1 else 0.5
         d1 = (lv[-1] - lv[-2]) / 2 if len(lv) > 1 else 0.5
         return 10 ** np.concatenate([[lv[0] - d0], mid, [lv[-1] + d1]])
+
+    def label(v: float) -> str:  # 3 significant digits, no exponent for 1000 Hz
+        g = float(f"{v:.3g}")
+        return f"{g:.0f}" if 100 <= g < 1e6 else f"{g:g}"
+
+    class GridLocator(Locator):
+        """The grid values whose labels do not touch at the axis' drawn size, kept in
+        order from the lowest (measured when the figure is drawn, after the layout)."""
+
+        def __init__(self, values, vertical):
+            self.values, self.vertical = np.sort(np.asarray(values, float)), vertical
+            size = rcParams["ytick.labelsize" if vertical else "xtick.labelsize"]
+            self.size_pt = FontProperties(size=size).get_size_in_points()
+
+        def __call__(self):
+            axis = self.axis
+            if axis is None or axis.axes is None:
+                return self.values
+            tr = axis.axes.transData
+            xy = np.column_stack([self.values, self.values])
+            pos = tr.transform(xy)[:, 1 if self.vertical else 0]
+            px = axis.axes.figure.dpi / 72 * self.size_pt
+            kept, last = [], -np.inf
+            for v, p in zip(self.values, pos):
+                need = 1.6 * px if self.vertical else 0.62 * px * len(label(v)) + 0.8 * px
+                if p - last >= need:
+                    kept.append(v)
+                    last = p
+            return np.asarray(kept)
 
     fe, le = edges(freqs), edges(loads)
     for i in range(len(loads)):
@@ -158,13 +218,20 @@ def plot_regime_map(rmap, ax=None):
     ax.set_yscale("log")
     ax.set_xlim(fe[0], fe[-1])
     ax.set_ylim(le[0], le[-1])
+    for axis, v, vertical in ((ax.xaxis, freqs, False), (ax.yaxis, loads, True)):
+        axis.set_major_locator(GridLocator(v, vertical))
+        axis.set_major_formatter(lambda x, _pos: label(x))
+        axis.set_minor_locator(FixedLocator(v))
+        axis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("step frequency $f_p$ (Hz)")
     ax.set_ylabel("normal load $N_b$ (µN)")
-    opt = "as written" if not rmap.stick_speed_m_per_s else f"stick band {rmap.stick_speed_m_per_s * 1e6:g} µm/s"
+    opt = ("equations as written" if not rmap.stick_speed_m_per_s
+           else f"stick threshold {rmap.stick_speed_m_per_s * 1e6:g} µm/s")
     ax.set_title(f"{rmap.coating}, k = {rmap.spring_constant_N_per_m:g} N/m ({opt})", fontsize=10)
-    from matplotlib.patches import Patch
-
-    present = [r for r in _REGIME_COLOURS if r in set(rmap.regimes.ravel())]
-    ax.legend(handles=[Patch(color=_REGIME_COLOURS[r], label=r) for r in present], fontsize=7,
-              loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    seen = set(np.asarray(rmap.regimes).ravel())
+    handles = [Patch(color=_REGIME_COLOURS[r], label=r) for r in _REGIME_COLOURS if r in seen]
+    if seen - set(_REGIME_COLOURS):
+        handles.append(Patch(fc="white", ec="0.5", lw=0.8, label="not simulated"))
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0),
+              title="regime", title_fontsize=8)
     return ax

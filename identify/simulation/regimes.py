@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from identify.progress import Stage, reporter
 from identify.simulation.hybrid import SimulationOptions, simulate
 
 __all__ = ["RegimeMap", "regime_map"]
@@ -85,9 +86,13 @@ def regime_map(
     stick_speed_m_per_s: float = 0.0,
     law: str = "exponential",
     params: dict | None = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[str], None] | bool | None = None,
 ) -> RegimeMap:
     """Simulate every (Nb, fp) of the grid and classify it.
+
+    ``progress`` (:mod:`identify.progress`): None draws a bar of the runs with the time
+    left on a terminal, False is silent, a callable gets each message (with ``done``
+    and ``total``).
 
     ``travel_um`` None gives each load enough travel for the first loading to μmax plus
     a few slips: max(20 µm, 3·μmax·Nb/k), at most the nanotractor's 100 µm. A failed
@@ -105,7 +110,7 @@ def regime_map(
     peak = np.full(shape, np.nan)
     wall = np.zeros(shape)
     errors = []
-    total, done = loads.size * freqs.size, 0
+    stage = Stage(reporter(progress), "regime map", loads.size * freqs.size)
     for i, nb in enumerate(loads):
         for j, fp in enumerate(freqs):
             try:
@@ -126,9 +131,7 @@ def regime_map(
                 regimes[i, j] = "error"
                 errors.append(f"Nb = {nb:g} µN, fp = {fp:g} Hz: {err}")
                 log.warning(errors[-1])
-            done += 1
-            if progress is not None:
-                progress(done, total)
+            stage.advance(f"Nb = {nb:g} µN, fp = {fp:g} Hz: {regimes[i, j]}")
     return RegimeMap(
         coating=coating, spring_constant_N_per_m=spring_constant_N_per_m,
         stick_speed_m_per_s=stick_speed_m_per_s, travel_um=travel_um,

@@ -54,7 +54,7 @@ def _magnitude(eid, scale):
     return eff.scaled_magnitude(scale) if eff.nested and eff.magnitude else None
 
 
-def case(eid, scale, quick, workers, seed=0, progress=None):
+def case(eid, scale, quick, workers, seed=0, progress=False):
     """One data set: ``eid`` an effect id, None, "outside", or ids joined by "+" (every one
     of them on at once, each at ``scale``; the baseline fixes what any of them needs)."""
     ids = eid.split("+") if eid and "+" in eid else None
@@ -124,7 +124,7 @@ def confusion(args):
         for sc in (scales if nested else [1.0]):
             try:
                 row = case(None if eid == "none" else eid, sc, args.quick, args.workers,
-                           progress=_stamped if args.progress else None)
+                           progress=_stamped if args.progress else False)
             except Exception as err:  # one failed case never sinks the table
                 row = dict(effect=eid, scale=sc, error=f"{type(err).__name__}: {err}")
             with out.open("a") as f:
@@ -157,7 +157,7 @@ def speed(args):
     mem_fit = peak_rss_mb()
     t1 = time.perf_counter()
     res = diagnose(None, baseline=base, options=DiagnosisOptions(workers=args.workers),
-                   progress=_stamped if args.progress else None)
+                   progress=_stamped if args.progress else False)
     t_diag = time.perf_counter() - t1
     print(f"baseline fit {t_fit:.1f} s; diagnosis (all {len(EFFECTS)} candidates, leave-one-run-out, "
           f"{args.workers} workers) {t_diag:.1f} s = {t_diag / t_fit:.1f}× the fit; target 120 s "

@@ -192,7 +192,7 @@ def test_cli_writes_json_and_plot(tmp_path, capsys, strict_json):
     assert [p["usable"] for p in d["points"]] == [True, False, True, False]
     assert fig.stat().st_size > 1000
     cap = capsys.readouterr()
-    assert "4/4 runs" in cap.err  # progress on stderr
+    assert "[ranges] regime map: " in cap.err and "[4/4, " in cap.err  # progress on stderr, counted
     assert "Usable fp per load" in cap.out and f"wrote {out}" in cap.out
 
 

@@ -330,15 +330,16 @@ def test_the_regime_screen_runs_in_the_diagnosis_workers(monkeypatch):
         m.setattr(rs, "screen_one", counted)
         here = regime_screen(ids, "exponential", free, TRUTH, [rr], lambda msg: said_here.append((msg, len(ran))))
     # in this process: one after another, each said as soon as it is done, not all at the end
-    assert [(m.split(": ", 1)[1], n) for m, n in said_here[1:]] == [
-        ("1/3 done: current model", 1), ("2/3 done: drift", 2), ("3/3 done: aging_logistic", 3)]
+    assert [(m.message, m.done, m.total, n) for m, n in said_here[1:]] == [
+        ("regime screen: current model", 1, 3, 1), ("regime screen: drift", 2, 3, 2),
+        ("regime screen: aging_logistic", 3, 3, 3)]
     said = []
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     with cf.ProcessPoolExecutor(max_workers=2, mp_context=ctx) as ex:
         there = regime_screen(ids, "exponential", free, TRUTH, [rr], said.append, executor=ex)
     assert json.dumps(there) == json.dumps(here)
     assert len(said) == 4 and said[0].startswith("regime screen: the current model and 2 candidate(s)")
-    assert said[-1].startswith("regime screen: 3/3 done")
+    assert said[-1].startswith("regime screen: ") and (said[-1].done, said[-1].total) == (3, 3)
 
     class Broken(cf.Executor):
         """drift cannot be submitted; the logistic law's worker is lost on the way."""
