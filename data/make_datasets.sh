@@ -24,7 +24,7 @@ for coating in FOTAS OTS; do
     name="${coating}_k${k}_Nb${nb}uN_fp${fp}Hz"
     python -m identify simulate --coating "$coating" --spring-constant "$k" \
       --normal-load-uN "$nb" --fp "$fp" --travel-um "$travel" --stick-speed 1e-5 \
-      --noise-nm 90 --seed "$seed" --out "data/$coating/$name" > /dev/null
+      --noise-nm 90 --seed "$seed" --out "data/$coating/$name" --overwrite > /dev/null
     echo "data/$coating/$name"
     seed=$((seed + 1))
   done <<< "$CONDITIONS"

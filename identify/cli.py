@@ -100,6 +100,8 @@ def _add_simulate(sub):
     p.add_argument("--out", required=True, metavar="DIR/NAME", help="output stem of the trace files")
     p.add_argument("--plot", action="store_true", help="also write DIR/NAME_fig13.png/.pdf (paper's Fig. 13)")
     p.add_argument("--json", metavar="SUMMARY.json", help="write a JSON summary of the run")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace trace, summary and figure files that already exist (refused otherwise)")
     p.set_defaults(func=_cmd_simulate)
 
 
@@ -110,6 +112,16 @@ def _cmd_simulate(args) -> int:
     stem = Path(args.out)
     if args.json and Path(args.json).resolve() == stem.with_suffix(".json").resolve():
         raise CLIError(f"--json {args.json}: that is the trace's own metadata file; choose another name")
+    if not args.overwrite:  # (before simulating: a recorded or earlier trace is never replaced unasked)
+        from identify.traces.io import trace_paths
+
+        outputs = [*trace_paths(stem)]
+        outputs += [Path(args.json)] if args.json else []
+        outputs += [stem.parent / f"{stem.name}_fig13{x}" for x in (".png", ".pdf")] if args.plot else []
+        there = [str(p) for p in outputs if p.exists()]
+        if there:
+            raise CLIError(f"--out {args.out}: {', '.join(there)} already exist(s); choose another --out or give "
+                           "--overwrite to replace them")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UserWarning)
         res = simulate(

@@ -241,7 +241,8 @@ class FitResult:
                f"removed slip)" if s.get("observations_detected", self.n_observations) != self.n_observations
                else ""),
             f"    NLP                = {self.nlp_size['variables']} variables, {self.nlp_size['constraints']} "
-            f"constraints, {self.nlp_size['residuals']} residuals",
+            f"constraints, {self.nlp_size['residuals']} residuals (a plateau's frames enter through their "
+            "mean; their scatter about it is a constant of the chi-square)",
             f"    solver             = {s['method']}: {s['status']} after {s['iterations']} "
             f"iterations, {s['wall_time_s']:.2f} s",
             f"    status             = {message(s['status'])}",

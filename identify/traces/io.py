@@ -34,6 +34,7 @@ __all__ = [
     "Trace",
     "TraceSet",
     "load_traces",
+    "trace_paths",
 ]
 
 FORMAT = "nanofrictor-trace/1"
@@ -354,6 +355,12 @@ def _stem_of(path: str | os.PathLike) -> Path:
 def _pair(stem: Path) -> tuple[Path, Path]:
     # string concatenation, not with_suffix: a stem such as "run.07" has a dot
     return Path(str(stem) + ".csv"), Path(str(stem) + ".json")
+
+
+def trace_paths(path: str | os.PathLike) -> tuple[Path, Path]:
+    """The (CSV, JSON) files of the run at ``path`` (``RUN``, ``RUN.csv`` or ``RUN.json``),
+    as :meth:`Trace.write` names them."""
+    return _pair(_stem_of(path))
 
 
 # ----------------------------------------------------------------------------- Trace

@@ -33,6 +33,23 @@ def test_simulate_writes_trace_and_summary(tmp_path, capsys, strict_json):
     assert s["regime"] == "stick-slip" and s["n_slips"] >= 1
 
 
+def test_simulate_never_replaces_files_unasked(tmp_path, capsys):
+    out = tmp_path / "r1"
+    assert main(BASE + ["--out", str(out), "--plot"]) == 0
+    before = out.with_suffix(".csv").read_bytes()
+    capsys.readouterr()
+    assert main(BASE + ["--out", str(out), "--seed", "2", "--noise-nm", "90"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "already exist" in err and "--overwrite" in err and str(out) in err
+    assert out.with_suffix(".csv").read_bytes() == before  # refused before simulating
+    # the figure alone (a new stem's plot would land on an old figure) is also refused
+    (out.parent / "r2_fig13.png").write_bytes(b"x")
+    assert main(BASE + ["--out", str(out.parent / "r2"), "--plot"]) == 2
+    assert "r2_fig13.png" in capsys.readouterr().err
+    assert main(BASE + ["--out", str(out), "--seed", "2", "--noise-nm", "90", "--overwrite"]) == 0
+    assert out.with_suffix(".csv").read_bytes() != before
+
+
 @pytest.mark.parametrize("change, words", [
     (["--spring-constant", "-1"], ["spring", "> 0"]),
     (["--fp", "nan"], ["step_frequency", "finite"]),

@@ -2065,3 +2065,10 @@ def test_a_rival_solution_as_good_as_the_best_flags_what_it_moves(small_fit):
     assert "not unique: another converged solution, chi-square +2.00" in res["tau"].flag
     res.multistart.update(starts=5, best_found=1)  # (as the spread starts leave it)
     assert "NOT unique" in res.report()
+
+
+def test_report_says_why_residuals_are_fewer_than_observations(small_fit):
+    rep = small_fit.report()
+    assert f"observations       = {small_fit.n_observations} (plateau frames" in rep
+    assert "residuals (a plateau's frames enter through their mean" in rep
+    assert small_fit.nlp_size["residuals"] < small_fit.n_observations
