@@ -60,6 +60,7 @@ from identify.fitting.driver import FitError, FitOptions, fit
 from identify.jsonio import write_json
 from identify.model.effects import EFFECTS, display, get_effect
 from identify.model.symbolic import LENGTH_UNIT
+from identify.progress import Stage, reporter
 
 __all__ = ["DiagnosisOptions", "DiagnosisResult", "diagnose", "make_executor"]
 
@@ -337,6 +338,27 @@ class DiagnosisResult:
             panels.append((label, x_um, st.value_um * 1e3))
         return panels
 
+    def trigger_misfit_by_run(self) -> list:
+        """As :meth:`trigger_misfit_by_position`, with the run of each slip: per model a
+        dict of ``label``, ``run`` (the run's name per slip), ``x_um``, ``misfit_nm`` and
+        ``sigma_nm`` (the misfit's standard deviation per slip, nm of elongation: one
+        puller step over √12, the resolution of a trigger)."""
+        out = []
+        if self.baseline is None:
+            return out
+        models = [("baseline", self.baseline.problem, self.baseline.w)]
+        if self.effects and self.final_problem is not None:
+            models.append(("+ " + ", ".join(self.effects), self.final_problem, self.final_w))
+        for label, prob, w in models:
+            if not prob.n_trig:
+                continue
+            st = feature_values(prob, w, prob.residuals(w))["static_friction"]
+            x_um = w[prob.i_x + prob.ev_prev[prob.ev_next]] * LENGTH_UNIT * 1e6
+            names = np.array([prob.runs[i].name for i in st.run])
+            out.append(dict(label=label, run=names, x_um=x_um, misfit_nm=st.value_um * 1e3,
+                            sigma_nm=st.sigma_um * 1e3))
+        return out
+
     def save_plots(self, folder) -> list:
         from identify.plots.diagnosis import save_diagnosis_plots
 
@@ -486,7 +508,7 @@ def _screen_note(current: dict, screen: list, reproducing: list = (), at: tuple 
 
 def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None = None,
              options: DiagnosisOptions | None = None, baseline=None, executor: cf.Executor | None = None,
-             progress: Callable[[str], None] | None = None) -> DiagnosisResult:
+             progress: Callable[[str], None] | bool | None = None) -> DiagnosisResult:
     """Diagnose the gap between a baseline model and the data.
 
     Parameters
@@ -500,6 +522,10 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
         An existing baseline fit to diagnose (saves its fit).
     executor : concurrent.futures.Executor, optional
         Where the candidate refits run (default from ``options.workers`` / ``options.dask``).
+    progress : callable, False or None
+        Where it reports what it is doing (:mod:`identify.progress`): None draws a bar per
+        round of refits with the time left on a terminal and logs otherwise; False is
+        silent; a callable gets each message.
 
     Raises
     ------
@@ -509,6 +535,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
         with ``resume=True`` goes on from there.
     """
     opts = options or DiagnosisOptions()
+    progress = reporter(progress)
     record = None
     if opts.record:
         given = baseline.problem.opts if baseline is not None else (fit_options or FitOptions())
@@ -517,8 +544,8 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
         record = DiagnosisRecord(opts.record, inputs, resume=opts.resume)
         if baseline is None:
             baseline = record.restored_baseline()
-            if baseline is not None:
-                (progress or log.info)(f"baseline fit from the record {record.path}")
+            if baseline is not None and progress is not None:
+                progress(f"baseline fit from the record {record.path}")
     own, closer = (executor, None) if executor is not None else make_executor(opts.workers, opts.dask)
     if record is not None:
         own = RecordedExecutor(own, record)
@@ -547,7 +574,7 @@ def diagnose(data, *, coating: str | None = None, fit_options: FitOptions | None
 def _diagnose(data, *, coating, fit_options, options, baseline, executor, progress, record) -> DiagnosisResult:
     opts = options
     fopts = fit_options or FitOptions()
-    say = progress or (lambda m: log.info(m))
+    say = progress or (lambda m: None)
     t0 = time.perf_counter()
     given = baseline.problem.opts if baseline is not None else fopts
     if given.trigger != "uniform":
@@ -593,8 +620,8 @@ def _diagnose(data, *, coating, fit_options, options, baseline, executor, progre
     while True:
         tasks, skipped = _tasks(remaining, current, runs, fopts, folds, opts, threads, where_hint=where0,
                                 regime_runs=regime_runs, at_magnitude=at_magnitude)
-        say(f"round {len(rounds) + 1}: {len(tasks) - 1} candidate refit(s) and the current model, "
-            f"{len(folds)} held-out fold(s) each")
+        stage = Stage(say, f"diagnosis round {len(rounds) + 1}", len(tasks))
+        stage.start(f"{len(tasks) - 1} candidate refit(s) and the current model, {len(folds)} held-out fold(s) each")
         results = []
         futs = {}
         for t in sorted(tasks, key=_expected_cost, reverse=True):
@@ -602,13 +629,13 @@ def _diagnose(data, *, coating, fit_options, options, baseline, executor, progre
                 futs[own.submit(run_candidate, t)] = t
             except Exception as err:  # a broken pool or a lost cluster: the candidate fails
                 results.append(dict(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err)))
-        for i, fut in enumerate(cf.as_completed(futs), 1):
+        for fut in cf.as_completed(futs):
             t = futs[fut]
             try:
                 res = fut.result()
             except Exception as err:  # a lost worker: the candidate fails, the rest goes on
                 res = dict(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err))
-            say(f"  {i}/{len(tasks)} done: {t.effect or 'current model'} ({res.get('status')})")
+            stage.advance(f"{t.effect or 'current model'} ({res.get('status')})")
             results.append(res)
         n_refits += len(tasks)
         base = next(r for r in results if r["effect"] is None)

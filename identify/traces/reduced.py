@@ -597,6 +597,34 @@ class ReducedFit:
             )
         )
 
+    def covariance(self, law: str) -> tuple[list, np.ndarray]:
+        """Covariance of a law fit's parameters (times in s) as its standard errors come
+        from it: s²·(JᵀJ)⁻¹ at the data points, s² = RSS/(n − free), over the parameters
+        not on a bound; returns (those parameters' names, the matrix). ([], 0×0) where it
+        is not defined (an undetermined or failed fit, a singular JᵀJ)."""
+        f = self.fits[law]
+        names = [p for p in f.parameters if p not in f.at_bounds]
+        empty = ([], np.zeros((0, 0)))
+        t = np.asarray(self.t_rest_s, float)
+        if not names or t.size < f.k + 1 or not all(math.isfinite(f.stderr.get(p, math.nan)) for p in names):
+            return empty
+        curve = get_law(f.law)
+        order = list(curve.curve_parameters)
+        theta = np.array([f.parameters[p] for p in order], float)
+        J = np.empty((t.size, len(names)))
+        for j, p in enumerate(names):  # central differences in the natural parameters
+            i = order.index(p)
+            h = 1e-6 * max(abs(theta[i]), 1e-9)
+            up, dn = theta.copy(), theta.copy()
+            up[i] += h
+            dn[i] -= h
+            J[:, j] = (curve.static_curve(t, up) - curve.static_curve(t, dn)) / (2 * h)
+        try:
+            cov = f.rss / (t.size - len(names)) * np.linalg.inv(J.T @ J)
+        except np.linalg.LinAlgError:
+            return empty
+        return (names, cov) if np.all(np.isfinite(cov)) else empty
+
     def plot(self, ax=None):
         """μs against rest time (log axis): data and the fitted laws (paper Fig. 10)."""
         from identify.plots.events import plot_reduced_fit
