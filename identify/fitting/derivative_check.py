@@ -19,6 +19,7 @@ Grazing arcs (:func:`identify.fitting.exact_arcs.grazing_flags`) are counted apa
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 import warnings
 from collections.abc import Sequence
@@ -26,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from identify import interrupts
 from identify.fitting.arcs import arc_functions
 from identify.fitting.exact_arcs import EXACT_RELTOL, GRAZING_REASONS, ExactArcs, grazing_flags
 from identify.jsonio import dumps
@@ -112,6 +114,7 @@ def idas_differences(exact: ExactArcs, arcs, A: np.ndarray, rows, rel_step: floa
             B = A.copy()
             B[i] += sgn * h
             y, _, _ = exact.jacobian(B, arcs.evaluate(B), rows=(i,))
+            interrupts.check()  # (a Ctrl-C inside CasADi's calls is only noted there)
             out.append(y[:2])
         J[:, i, :] = (out[0] - out[1]) / (2 * h)
     return J
@@ -126,10 +129,14 @@ def compare(case: ArcCase, reltol: float = EXACT_RELTOL, self_check: bool = True
     t0 = time.perf_counter()
     _, J_exact, ok = exact.jacobian(A, Y, rows)
     t_exact = time.perf_counter() - t0
+    interrupts.check()  # (a Ctrl-C inside CasADi's calls is only noted there)
     J_fwd, t_fwd = _fd(arcs, A, rows, "forward", 1e-4)
+    interrupts.check()
     J_cen, t_cen = _fd(arcs, A, rows, "central", 1e-4)
+    interrupts.check()
     tight = arc_functions(model, REFERENCE_TOL, REFERENCE_TOL * 1e-2)
     J_ref, _ = _fd(tight, A, rows, "central", REFERENCE_STEP)
+    interrupts.check()
     flags = grazing_flags(model, A, Y, arcs.index)
     smooth = (flags == 0) & ok
     out = dict(case=case.name, arcs=int(A.shape[1]), exact_failed=int((~ok).sum()),
@@ -221,12 +228,19 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     data = a.data if a.data and os.path.isdir(a.data) else None
     results = []
-    for case in default_cases(data, a.travel_um):
-        r = compare(case, a.reltol)
-        results.append(r)
-        print(format_result(r), flush=True)
-    if a.json:
-        with open(a.json, "w") as fh:
-            fh.write(dumps(results, indent=1))
+    try:
+        with interrupts.honoured():
+            for case in default_cases(data, a.travel_um):
+                r = compare(case, a.reltol)
+                results.append(r)
+                print(format_result(r), flush=True)
+    except KeyboardInterrupt:
+        kept = f" (and in {a.json})" if a.json and results else ""
+        print(f"interrupted: {len(results)} case(s) finished, printed above{kept}", file=sys.stderr)
+        return 130
+    finally:  # what finished is written even when interrupted
+        if a.json and results:
+            with open(a.json, "w") as fh:
+                fh.write(dumps(results, indent=1))
     return 0
 

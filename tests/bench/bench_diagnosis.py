@@ -179,7 +179,19 @@ def speed(args):
           f"({mem_worker / mem_fit:.2f}×)" + ("" if args.workers > 1 else " (no worker processes with --workers 1)"))
 
 
-def main(argv=None):
+def main(argv=None) -> int:
+    try:
+        _main(argv)
+    except KeyboardInterrupt:
+        args = list(sys.argv[1:] if argv is None else argv)
+        out = (args[args.index("--out") + 1] if "--out" in args[:-1] else "bench_diagnosis.jsonl"
+               ) if args and args[0] == "confusion" else None
+        print("interrupted: " + (f"the finished rows are in {out}" if out else "nothing saved"), file=sys.stderr)
+        return 130
+    return 0
+
+
+def _main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("confusion")

@@ -43,6 +43,7 @@ them, the share spent deciding the mode sequence after the first solve).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -154,7 +155,7 @@ def _recorded(record, context) -> dict:
 
 def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitter: float = 0.0,
                 record: str | None = None, seeds: range | None = None) -> dict:
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
 
     truth = _truth(coating)
     context = dict(coating=coating, travel_um=travel_um, jitter_load=jitter,
@@ -168,7 +169,7 @@ def calibration(repeats: int, coating: str, travel_um: float, workers: int, jitt
         todo = todo[::-1]  # (so a process doing all of them in order meets it instead of doubling it)
     jobs = [(coating, travel_um, s, jitter) for s in todo]
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=workers) as ex:
+    with _pool(workers) as ex:
         futures = {ex.submit(_one_repeat, job): job[2] for job in jobs}
         for fut in as_completed(futures):
             row = fut.result()
@@ -431,7 +432,7 @@ def _robust_job(job):
 
 def robustness(n_sets: int, effects, seed: int, workers: int = 1, record: str | None = None,
                only: list | None = None) -> dict:
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
 
     from identify.fitting.driver import FitOptions
 
@@ -450,7 +451,7 @@ def robustness(n_sets: int, effects, seed: int, workers: int = 1, record: str | 
             rows[name] = done[name]
             _robust_line(done[name])
     todo = [job for job, name in zip(jobs, names) if name not in done]
-    with ProcessPoolExecutor(max_workers=max(1, workers)) as ex:
+    with _pool(max(1, workers)) as ex:
         for fut in as_completed([ex.submit(_robust_job, job) for job in todo]):
             row = fut.result()
             rows[row["set"]] = row
@@ -498,7 +499,39 @@ def _robust_line(row):
           f"{row['status']}", flush=True)
 
 
+@contextlib.contextmanager
+def _pool(workers: int):
+    """A process pool that an interrupt stops at once (its finished rows are in the
+    record already) rather than waiting, as a ``with`` pool's exit does, for every
+    running fit."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from identify.executors import stop_pool
+
+    ex = ProcessPoolExecutor(max_workers=workers)
+    try:
+        yield ex
+    except KeyboardInterrupt:
+        stop_pool(ex)
+        raise
+    finally:
+        ex.shutdown()
+
+
 def main(argv=None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        args = list(sys.argv[1:] if argv is None else argv)
+        record = args[args.index("--record") + 1] if "--record" in args[:-1] else None
+        hint = " (--record FILE keeps each finished row and resumes)" if args[:1] in (["calibration"],
+                                                                                      ["robustness"]) else ""
+        print("interrupted: " + (f"the finished rows are in {record}; the same command resumes from it" if record
+                                 else "nothing saved" + hint), file=sys.stderr)
+        return 130
+
+
+def _main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="what", required=True)
     c = sub.add_parser("calibration")

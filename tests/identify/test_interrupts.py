@@ -25,9 +25,11 @@ DATA = ROOT / "data" / "FOTAS"
 EXIT_WITHIN_S = 5.0
 
 
-def _interrupt_when(cmd, marker: str, cwd, timeout: float = 300.0):
-    """Run ``cmd``; send SIGINT once ``marker`` appears on its stderr. (return code,
-    seconds from the signal to the exit, stderr)."""
+def _interrupt_when(cmd, marker, cwd, timeout: float = 300.0, after_s: float | None = None):
+    """Run ``cmd``; send SIGINT once a line of its stderr holds ``marker`` (a string, or
+    a tuple of strings that must all be in the line), or ``after_s`` seconds in. (return
+    code, seconds from the signal to the exit, stderr)."""
+    marks = marker if isinstance(marker, tuple) else (marker,)
     # (SIGINT at its default in the child, as a terminal's Ctrl-C finds it: a test run
     # started in the background of a shell script inherits it ignored, and a program that
     # ignores SIGINT is right to)
@@ -36,15 +38,22 @@ def _interrupt_when(cmd, marker: str, cwd, timeout: float = 300.0):
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines, sent = [], [None]
 
+    def send():
+        if sent[0] is None and proc.poll() is None:
+            sent[0] = time.perf_counter()
+            proc.send_signal(signal.SIGINT)
+
     def read():
         for line in proc.stderr:
             lines.append(line)
-            if sent[0] is None and marker in line:
-                sent[0] = time.perf_counter()
-                proc.send_signal(signal.SIGINT)
+            if after_s is None and all(m in line for m in marks):
+                send()
 
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
+    timer = threading.Timer(after_s, send) if after_s is not None else None
+    if timer is not None:
+        timer.start()
     try:
         proc.wait(timeout=timeout)
     finally:
@@ -76,7 +85,8 @@ def test_interrupted_fit_exits_within_seconds_and_saves_its_best_point(tmp_path,
 def test_interrupted_diagnosis_keeps_its_record_and_resumes_from_it(tmp_path, strict_json):
     cmd = [sys.executable, "-m", "identify", "diagnose", str(DATA), "--fix", "v_stick=1e-5", "--effects",
            "drift,damping", "--workers", "2", "--json", "diag.json"]
-    rc, after, err = _interrupt_when(cmd, "1/3 done", tmp_path)  # (a refit finished, two under way)
+    # (a refit finished, two under way)
+    rc, after, err = _interrupt_when(cmd, ("[diagnose] diagnosis round 1: ", "[1/3, "), tmp_path)
     assert rc == 130, err[-2000:]
     assert after < EXIT_WITHIN_S
     assert "Traceback" not in err
@@ -155,10 +165,33 @@ def test_the_library_fit_raises_interrupted_with_its_best_point():
 def test_interrupted_verification_keeps_its_finished_fits(tmp_path):
     cmd = [sys.executable, "-m", "design", "experiment", "--runs", "2", "--springs", "2.13", "--loads-uN", "5", "10",
            "--fp", "30", "100", "--travel-um", "12", "--json", "plan.json", "--verify", "3", "--workers", "2"]
-    rc, after, err = _interrupt_when(cmd, "verification: 1/6 fits done", tmp_path, timeout=900)
+    rc, after, err = _interrupt_when(cmd, ("verification fits: ", "[1/6, "), tmp_path, timeout=900)
     assert rc == 130, err[-2000:]
     assert after < EXIT_WITHIN_S
     assert "Traceback" not in err
     lines = (tmp_path / "plan.verify.jsonl").read_text().splitlines()
     assert len(lines) >= 1
     assert "plan.verify.jsonl" in err.strip().splitlines()[-1]
+
+
+def test_interrupted_derivatives_check_keeps_the_cases_it_finished(tmp_path, strict_json):
+    cmd = [sys.executable, "-m", "identify", "bench", "derivatives", "--data", str(DATA), "--json", "d.json"]
+    rc, after, err = _interrupt_when(cmd, None, tmp_path, after_s=12.0)  # (the first case takes ~8 s)
+    assert rc == 130, err[-2000:]
+    assert after < EXIT_WITHIN_S
+    assert "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("interrupted: ") and "case(s) finished" in last
+    if "d.json" in last:  # a case finished before the signal: it is kept
+        assert len(strict_json(tmp_path / "d.json")) >= 1
+
+
+def test_interrupted_fit_benchmark_exits_without_a_traceback(tmp_path):
+    bench = ROOT / "tests" / "bench" / "bench_fit.py"
+    cmd = [sys.executable, str(bench), "robustness", "--sets", "2", "--effects", "none", "--workers", "2",
+           "--record", str(tmp_path / "r.jsonl")]
+    rc, after, err = _interrupt_when(cmd, None, ROOT, after_s=6.0)
+    assert rc == 130, err[-2000:]
+    assert after < EXIT_WITHIN_S  # (the pool's running fits are stopped, not waited for)
+    assert "Traceback" not in err
+    assert "r.jsonl" in err.strip().splitlines()[-1]
