@@ -219,7 +219,7 @@ class DiagnosisResult:
             why = (f" (not computed: {ho['error']})" if ho.get("error") else
                    f" ({ho['refitted_folds']} fold(s) refitted: the linear leave-out step did not hold)"
                    if ho.get("refitted_folds") else "")
-            L.append(f"    gap (held out)     = {ho.get('gap_um', float('nan')) * 1e3:.1f} nm before{why}")
+            L.append(f"    gap (held out)     = {_cell(_nm(ho.get('gap_um')), '.1f')} nm before{why}")
         if "regime_slip_gap_heldout_um" in self.final:  # named by its profile on every run
             f = self.final
             L.append(f"    gap after          = {f['gap_um'] * 1e3:.1f} nm fitted; the runs left out for their "
@@ -240,8 +240,8 @@ class DiagnosisResult:
                 L.append(f"    {m.feature:27s} {m.misfit_sigma:5.1f} σ  p = {m.p_value:.2g}  {m.detail}")
         for k, rnd in enumerate(self.rounds):
             L.append(f"[[Candidates, round {k + 1}]]" + (f" (after adding {', '.join(self.effects[:k])})" if k else ""))
-            L.append(f"    {'effect':24s} {'Δnll':>9s} {'p':>9s} {'ΔAIC':>9s} {'ΔBIC':>9s} {'gap µm':>15s} "
-                     f"{'held-out µm':>15s} {'Δnll h-o':>9s}  note")
+            L.append(f"    {'effect':24s} {'Δnll':>9s} {'p':>9s} {'ΔAIC':>9s} {'ΔBIC':>9s} {'gap nm':>13s} "
+                     f"{'held-out nm':>13s} {'Δnll h-o':>9s}  note")
             for c in rnd:
                 if c.get("effect") is None:
                     continue
@@ -249,11 +249,12 @@ class DiagnosisResult:
                     L.append(f"    {c['effect']:24s} {c.get('reason') or c.get('status')}")
                     continue
                 p = c["p_value"]
-                L.append(f"    {c['effect']:24s} {c['delta_nll']:9.2f} {p if p is not None else float('nan'):9.2g} "
-                         f"{c['delta_aic']:9.1f} {c['delta_bic']:9.1f} "
-                         f"{c['gap_before_um']:6.3f}->{c['gap_after_um']:<7.3f} "
-                         f"{c['heldout_gap_before_um']:6.3f}->{c['heldout_gap_after_um']:<7.3f} "
-                         f"{c.get('heldout_delta_nll', float('nan')):9.2f}  {c['note']}")
+                L.append(f"    {c['effect']:24s} {_cell(c['delta_nll'], '9.2f')} {_cell(p, '9.2g')} "
+                         f"{_cell(c['delta_aic'], '9.1f')} {_cell(c['delta_bic'], '9.1f')} "
+                         f"{_cell(_nm(c['gap_before_um']), '5.1f')}->{_cell(_nm(c['gap_after_um']), '<6.1f')} "
+                         f"{_cell(_nm(c['heldout_gap_before_um']), '5.1f')}->"
+                         f"{_cell(_nm(c['heldout_gap_after_um']), '<6.1f')} "
+                         f"{_cell(c.get('heldout_delta_nll'), '9.2f')}  {c['note']}")
         if self.regime_screen:
             at = ("no baseline: the fit's start values" if self.baseline is None else
                   "the runs left out for their regime, at the final model's values")
@@ -363,6 +364,20 @@ class DiagnosisResult:
         from identify.plots.diagnosis import save_diagnosis_plots
 
         return save_diagnosis_plots(self, folder)
+
+
+def _nm(um):
+    """µm to nm, None kept."""
+    return None if um is None else um * 1e3
+
+
+def _cell(x, fmt: str) -> str:
+    """A table cell: the number in ``fmt``, or a dash of the same width where there is
+    none (not computed, or not a number), never 'nan'."""
+    width = int("".join(ch for ch in fmt.lstrip("<>") if ch.isdigit() or ch == ".").split(".")[0] or 0)
+    if x is None or not math.isfinite(float(x)):
+        return f"{'–':{'<' if fmt.startswith('<') else '>'}{width}s}"
+    return f"{x:{fmt}}"
 
 
 _CAND_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delta_bic", "confounded_with",

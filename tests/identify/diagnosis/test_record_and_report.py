@@ -26,3 +26,16 @@ def test_every_refit_that_ended_short_is_listed_under_the_verdict():
     line = next(x for x in res.report().splitlines() if "not converged" in x)
     assert "2 refit(s)" in line and "logarithmic (round 1: Maximum_Iterations_Exceeded)" in line
     assert res.to_json()["not_converged"][0]["effect"] == "logarithmic"
+
+
+def test_candidate_table_is_in_nm_as_the_summary_and_never_prints_nan():
+    missing = dict(_scored("damping", "Solve_Succeeded"), p_value=None, heldout_gap_after_um=float("nan"),
+                   heldout_delta_nll=None)
+    rep = _result([[dict(effect=None, ok=False, status="Solve_Succeeded"), _scored("drift", "Solve_Succeeded"),
+                    missing]]).report()
+    header = next(x for x in rep.splitlines() if "Δnll h-o" in x)
+    assert "gap nm" in header and "held-out nm" in header and "µm" not in header
+    drift = next(x for x in rep.splitlines() if x.strip().startswith("drift"))
+    assert "20.0->20.0" in drift  # 0.02 µm, in nm as the summary gives it
+    damping = next(x for x in rep.splitlines() if x.strip().startswith("damping"))
+    assert "nan" not in damping.lower() and "20.0->–" in damping
