@@ -624,8 +624,17 @@ def _estimates(prob, w, ev) -> dict:
         C = prob.covariance(w, robust=True, evaluated=ev)
     except Exception:
         C = np.full((prob.n_theta, prob.n_theta), np.nan)
-    return {n: dict(value=float(v), stderr=se, ci95=list(ci) if ci is not None else None)
-            for n, v, (se, _, ci) in zip(tm.names, tm.from_scaled(th), standard_errors(tm, th, C, 1.0))}
+    lo, hi = tm.from_scaled(tm.lo), tm.from_scaled(tm.hi)
+
+    def bound(i):
+        """'lower'/'upper' where the estimate sits on a bound (its value is the bound's,
+        not the data's: a damping at −3e-7 N s/m is the least the model allows)."""
+        tol = 1e-6 * max(1.0, abs(tm.lo[i]), abs(tm.hi[i]))
+        return "lower" if th[i] - tm.lo[i] <= tol else "upper" if tm.hi[i] - th[i] <= tol else None
+
+    return {n: dict(value=float(v), stderr=se, ci95=list(ci) if ci is not None else None, at_bound=bound(i),
+                    bound=float(lo[i] if bound(i) == "lower" else hi[i]) if bound(i) else None)
+            for i, (n, v, (se, _, ci)) in enumerate(zip(tm.names, tm.from_scaled(th), standard_errors(tm, th, C, 1.0)))}
 
 
 def _confounding(prob, w, ev, extra: Sequence[str]) -> dict:

@@ -1417,6 +1417,8 @@ def _wald(c, eff) -> float:
 
 def _fmt(e: dict) -> str:
     v, se = e["value"], e.get("stderr")
+    if e.get("at_bound"):  # its value is the bound's, not the data's: no ± to give
+        return f"{v:.4g} (at its {e['at_bound']} bound: the data push past what the model allows)"
     return f"{v:.4g} ± {se:.2g}" if se is not None else f"{v:.4g}"
 
 

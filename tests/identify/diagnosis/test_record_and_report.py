@@ -39,3 +39,25 @@ def test_candidate_table_is_in_nm_as_the_summary_and_never_prints_nan():
     assert "20.0->20.0" in drift  # 0.02 µm, in nm as the summary gives it
     damping = next(x for x in rep.splitlines() if x.strip().startswith("damping"))
     assert "nan" not in damping.lower() and "20.0->–" in damping
+
+
+def test_an_estimate_on_its_bound_says_so_rather_than_giving_a_value_with_an_error():
+    """(a diagnosis showed 'damping -3e-07 N·s/m' as if measured: it is the bound that
+    keeps the total damping positive)"""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from identify.diagnosis.candidates import _estimates
+    from identify.diagnosis.rounds import _fmt
+    from identify.fitting.problem import ThetaMap
+    from identify.model.effects import get_effect
+
+    tm = ThetaMap.build(("tau", "c_extra"), {"c_extra": get_effect("damping").bounds["c_extra"]})
+    th = np.array([tm.to_scaled({"tau": 0.07, "c_extra": 0.0})[0], tm.lo[1]])
+    prob = SimpleNamespace(theta=tm, n_theta=2, covariance=lambda w, robust, evaluated: np.eye(2) * 1e-4)
+    est = _estimates(prob, th, None)
+    assert est["tau"]["at_bound"] is None and "±" in _fmt(est["tau"])
+    assert est["c_extra"]["at_bound"] == "lower" and est["c_extra"]["bound"] == -3e-7
+    text = _fmt(est["c_extra"])
+    assert "at its lower bound" in text and "±" not in text
