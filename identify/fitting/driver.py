@@ -926,7 +926,9 @@ def _fit(data, *, coating, options, true_values, progress):
                 keep_for_regime(r)
         run_data = kept
     if not run_data:
-        raise FitError("no run could be used: " + "; ".join(f"{n}: {why}" for n, why in excluded) if excluded
+        # (a reason that already starts with the file's name, as a format error's does, is not prefixed again)
+        raise FitError("no run could be used: " + "; ".join(why if str(why).startswith(str(n)) else f"{n}: {why}"
+                                                            for n, why in excluded) if excluded
                        else "no run could be used", excluded, regime_runs=regime_runs, values=values)
     say(f"{len(run_data)} run(s) used, {len(excluded)} left out; building the NLP")
     for r in run_data:

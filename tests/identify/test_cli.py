@@ -106,3 +106,11 @@ def test_an_error_raised_on_purpose_blames_the_input(capsys):
     code = cli.main(["fit", "/no/such/folder/anywhere", "--json", "unused.json"])
     err = capsys.readouterr().err
     assert code == 2 and "error: /no/such/folder/anywhere" in err and "internal" not in err
+
+
+def test_fit_of_only_bad_runs_names_each_file_once(tmp_path, capsys):
+    (tmp_path / "r1.csv").write_text("time_s,elongation_m\n0,1e-6\n")
+    (tmp_path / "r1.json").write_text('{"format": "nanofrictor-trace/1"}')
+    assert main(["fit", str(tmp_path), "--json", str(tmp_path / "f.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("error: no run could be used: ") and err.count("r1.json") == 1
