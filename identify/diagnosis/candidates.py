@@ -82,7 +82,7 @@ stop: the refits that end not significant took 20 iterations (stick_threshold, 4
 p = 0.12-0.95; with it (two workers) they stop after 4-5 iterations, 9-13 s each."""
 BASIN_GIVE_UP_AFTER = 1
 """The same stop after one iteration for each basin of a candidate solved from several
-(the topography's leading ripples, :func:`identify.diagnosis.rounds._starts`): the basins are
+(the topography's leading ripples, :func:`identify.diagnosis.tasks.candidate_starts`): the basins are
 alternatives, and the one the data favour gains from its first step. Measured on the
 8-run diagnosis benchmark (model-made data, one worker, 2026-11-25): six ripple basins
 took 4, 4, 4, 4, 11 and 4 iterations, 34 s, each ending unable to matter after its first
@@ -575,7 +575,7 @@ def _at_magnitude(task: CandidateTask, prob, w: np.ndarray, chi2: float, est: di
     if task.regime_runs:
         # The runs left out for their regime, at the held values: with its parameter at
         # the magnitude and the model's own refitted to the runs fitted, does the effect
-        # make them? (identify.diagnosis.rounds._held_evidence). Measured (withheld rejuvenation,
+        # make them? (identify.diagnosis.regime_notes.held_evidence). Measured (withheld rejuvenation,
         # dc = 1 µm; 2 runs fitted, 6 left out): held at 1 µm the runs fitted give χ²
         # 2744.73 against the current model's 2744.97, and all 6 come out as the data's
         # (χ² 0, against 54.3 at the current values); on top of the current values without

@@ -1,4 +1,4 @@
-"""Figures of a diagnosis (:meth:`identify.diagnosis.rounds.DiagnosisResult.save_plots`).
+"""Figures of a diagnosis (:meth:`identify.diagnosis.result.DiagnosisResult.save_plots`).
 
 plot_misfit_by_feature
     Each feature test's misfit (σ) for the baseline and the final model, with the

@@ -11,7 +11,8 @@ import identify
 from identify.cli import main
 from identify.diagnosis.features import Layout, feature_values, gap
 from identify.diagnosis.heldout import exact_fold, folds_of, heldout_residuals
-from identify.diagnosis.rounds import DiagnosisOptions, diagnose
+from identify.diagnosis.result import DiagnosisOptions
+from identify.diagnosis.rounds import diagnose
 from identify.diagnosis.where import misfit_sigma, where
 from identify.model.effects import get_effect
 
@@ -263,7 +264,7 @@ def test_diagnosis_of_model_made_data_is_adequate(small_fit, tmp_path):
         assert sum(f["heldout_delta_nll"] for f in c["heldout_by_fold"]) == pytest.approx(
             c["heldout_delta_nll"], abs=1e-6)
         assert len(c["heldout_by_fold"]) == len(small_fit.problem.runs)
-        # too few runs to set one aside (the _score wiring test covers one set aside)
+        # too few runs to set one aside (the score_round wiring test covers one set aside)
         assert c["heldout_set_aside"] is None
         assert c["heldout_gap_sigma_before"] > 0.5 and c["gap_sigma_after"] > 0.5  # in noise units
     assert {m["feature"] for m in js["where"]} >= {"post_slip_level", "static_friction"}
@@ -468,26 +469,27 @@ def test_a_refit_already_past_the_naming_screen_gets_more_rounds():
 @pytest.mark.parametrize("status, named", [("Solve_Succeeded", True), ("Stalled_Within_Tolerance", True),
                                            (MAX_IT, False)])
 def test_a_stalled_refit_can_be_named_an_unconverged_one_cannot(status, named):
-    from identify.diagnosis.rounds import _closed_fraction, _closes, _try
+    from identify.diagnosis.scores import closed_fraction, closes_gap
+    from identify.diagnosis.selection import try_named
 
     best = dict(effect="spring_nonlinearity", dr=np.ones(3), delta_aic=-14176.0, status=status,
                 estimate_text="beta = 9.8e8", gap=dict(noise_um=0.02), heldout_gap_before_um=0.097,
                 heldout_gap_after_um=0.021)
-    best["closed_fraction"] = _closed_fraction(best)
-    best["closes"] = _closes(best)
-    chosen, group = _try(best, [])
+    best["closed_fraction"] = closed_fraction(best)
+    best["closes"] = closes_gap(best)
+    chosen, group = try_named(best, [])
     assert (chosen is best) is named and group is None
     if not named:
         assert "did not converge" in best["note"]
 
 
 def _cand(dnll, ho_dnll, ho_before=0.0205, ho_after=0.0212, noise=0.0150):
-    from identify.diagnosis.rounds import _closed_fraction, _explained_share
+    from identify.diagnosis.scores import closed_fraction, explained_share
 
     base = dict(chi2=11098.4, n_obs=10769, n_eff=27)  # measured: A = 0.0045 data, baseline A = 0
     c = dict(delta_nll=dnll, heldout_delta_nll=ho_dnll, gap=dict(noise_um=noise), heldout_gap_before_um=ho_before,
              heldout_gap_after_um=ho_after)
-    c["closed_fraction"], c["explained_share"] = _closed_fraction(c), _explained_share(c, base)
+    c["closed_fraction"], c["explained_share"] = closed_fraction(c), explained_share(c, base)
     c["heldout_gap_ratio_before"] = ho_before / noise
     c["at_floor"] = c["heldout_gap_ratio_before"] <= 1.5  # DiagnosisOptions.gap_tolerance
     return c
@@ -497,16 +499,16 @@ def test_a_gap_at_the_encodings_floor_is_closed_by_the_likelihood():
     """Measured: A freed on data made with A = 0.0045 (baseline A = 0): Δnll 119.5 fitted, 142.5
     held out, but the held-out µm gap 20.5 -> 21.2 nm. It closes the gap; a candidate with the
     same fitted gain that loses it held out, or one that removes little of the excess χ², does not."""
-    from identify.diagnosis.rounds import _closes
+    from identify.diagnosis.scores import closes_gap
 
     vs = _cand(119.5, 142.5)
     # excess χ² 356 over 10742 dof, floored at 3 chance σ (440)
     assert vs["closed_fraction"] <= 0 and vs["explained_share"] == pytest.approx(239.0 / 439.7, abs=0.01)
-    assert _closes(vs)
-    assert not _closes(_cand(119.5, 30.0))  # an in-sample gain the held-out runs do not share
-    assert not _closes(_cand(119.5, float("nan")))
-    assert not _closes(_cand(20.0, 20.0))  # 11 % of the excess: a formal gain
-    assert _closes(_cand(1.0, -5.0, ho_before=0.10, ho_after=0.03))  # the µm gap closes
+    assert closes_gap(vs)
+    assert not closes_gap(_cand(119.5, 30.0))  # an in-sample gain the held-out runs do not share
+    assert not closes_gap(_cand(119.5, float("nan")))
+    assert not closes_gap(_cand(20.0, 20.0))  # 11 % of the excess: a formal gain
+    assert closes_gap(_cand(1.0, -5.0, ho_before=0.10, ho_after=0.03))  # the µm gap closes
 
 
 def test_an_unconfirmed_held_out_gap_of_a_candidate_no_test_could_name_is_not_reported(small_fit, monkeypatch):
@@ -515,7 +517,7 @@ def test_an_unconfirmed_held_out_gap_of_a_candidate_no_test_could_name_is_not_re
     the model contradicts; a nameable one gets its folds refitted."""
     import identify.diagnosis.candidates as cand
     from identify.diagnosis.heldout import HeldOut
-    from identify.diagnosis.rounds import _tasks
+    from identify.diagnosis.tasks import candidate_tasks
 
     prob, w = small_fit.problem, small_fit.w
     r = prob.residuals(w)
@@ -523,7 +525,7 @@ def test_an_unconfirmed_held_out_gap_of_a_candidate_no_test_could_name_is_not_re
                    w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta,
                    chi2=float(r @ r) + prob.chi2_constant(), n_eff=prob.n_effective())
     folds = [[i] for i in range(len(prob.runs))]
-    tasks, _ = _tasks(["drift"], current, prob.runs, prob.opts, folds, DiagnosisOptions(), 1, where_hint=[])
+    tasks, _ = candidate_tasks(["drift"], current, prob.runs, prob.opts, folds, DiagnosisOptions(), 1, where_hint=[])
     asked = []
 
     def fake(p, w, folds, evaluated=None, refit=True):
@@ -558,7 +560,7 @@ def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, mo
     end (on the benchmark's topography set the highest peak led to a wrong wavelength and
     the seventh to the true one, identify.diagnosis.where.RIPPLE_PEAK_SHARE)."""
     import identify.diagnosis.candidates as cand
-    from identify.diagnosis.rounds import _starts, _tasks
+    from identify.diagnosis.tasks import candidate_starts, candidate_tasks
     from identify.diagnosis.where import Misfit
     from identify.model.effects import get_effect
 
@@ -567,19 +569,20 @@ def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, mo
     hint = [Misfit("position", 6.0, 1e-9, 40.0, "ripple", extra=dict(wavelength_m=1.1e-6, amplitude=0.01,
                                                                       phase=2.9, peaks=peaks))]
     eff = get_effect("topography")
-    starts = _starts(eff, {}, hint)  # (the topography starts do not use the nulls)
+    starts = candidate_starts(eff, {}, hint)  # (the topography starts do not use the nulls)
     assert [(s["_basin"], s["topo_wavelength"], np.sign(s["topo_amp"])) for s in starts] == [
         (0, 1.1e-6, 1), (0, 1.1e-6, -1), (1, 3.7e-6, 1), (1, 3.7e-6, -1)]
     # an older hint without peaks still gives the one ripple
     old = [Misfit("position", 6.0, 1e-9, 40.0, "ripple", extra=dict(wavelength_m=2e-6, amplitude=0.01, phase=0.0))]
-    assert {s["topo_wavelength"] for s in _starts(eff, {}, old)} == {2e-6}
+    assert {s["topo_wavelength"] for s in candidate_starts(eff, {}, old)} == {2e-6}
 
     prob, w = small_fit.problem, small_fit.w
     r = prob.residuals(w)
     current = dict(values={**prob.values, **small_fit.values}, free=tuple(prob.theta.names), law=prob.law.name,
                    w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta,
                    chi2=float(r @ r) + prob.chi2_constant(), n_eff=prob.n_effective())
-    tasks, _ = _tasks(["topography"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, where_hint=hint)
+    tasks, _ = candidate_tasks(["topography"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1,
+                               where_hint=hint)
     solved, ends = [], []
     real = cand._solve_on
 
@@ -605,14 +608,15 @@ def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, mo
 
 
 def test_the_likelihood_test_is_wired_into_naming_and_says_what_failed():
-    from identify.diagnosis.rounds import _closes, _try
+    from identify.diagnosis.scores import closes_gap
+    from identify.diagnosis.selection import try_named
 
     for c, named, why in ((_cand(119.5, 142.5), True, None), (_cand(119.5, 30.0), False, "keeps 30.0 of its"),
                           (_cand(20.0, 20.0), False, "removes 9 % of the excess")):
         c.update(effect="velocity_strengthening", dr=np.ones(3), delta_aic=-2 * c["delta_nll"] + 2,
                  status="Solve_Succeeded", estimate_text="A = 0.0046")
-        c["closes"] = _closes(c)
-        chosen, group = _try(c, [])
+        c["closes"] = closes_gap(c)
+        chosen, group = try_named(c, [])
         assert (chosen is c) is named and group is None
         if why:
             assert why in c["note"], c["note"]
@@ -620,9 +624,9 @@ def test_the_likelihood_test_is_wired_into_naming_and_says_what_failed():
 
 def _drift_folds(g, h, ho_total=None, names=None, without=0.3, base_chi2=424_000.0, at_floor=False,
                  without_after=0.05):
-    """A candidate scored per fold as :func:`identify.diagnosis.rounds._score` does (base χ² per
+    """A candidate scored per fold as :func:`identify.diagnosis.rounds.score_round` does (base χ² per
     fold 2·gain, the candidate's 0)."""
-    from identify.diagnosis.rounds import _closed_fraction, _explained_share, _heldout_by_fold
+    from identify.diagnosis.scores import closed_fraction, explained_share, heldout_by_fold
 
     g, h = np.asarray(g, float), np.asarray(h, float)
     n = len(g)
@@ -634,10 +638,10 @@ def _drift_folds(g, h, ho_total=None, names=None, without=0.3, base_chi2=424_000
              gap=dict(noise_um=0.02), heldout_gap_before_um=0.336, heldout_gap_after_um=0.321,
              heldout=dict(chi2_by_fold=[0.0] * n, fitted_chi2_by_fold=[0.0] * n, rows_by_fold=[50] * n,
                           gap_um_without_fold=[without_after] * n, noise_um_without_fold=[0.02] * n))
-    c["closed_fraction"], c["explained_share"] = _closed_fraction(c), _explained_share(c, base)
+    c["closed_fraction"], c["explained_share"] = closed_fraction(c), explained_share(c, base)
     c["heldout_gap_ratio_before"] = c["heldout_gap_before_um"] / 0.02
     c["at_floor"] = at_floor
-    c["heldout_by_fold"], c["heldout_set_aside"] = _heldout_by_fold(
+    c["heldout_by_fold"], c["heldout_set_aside"] = heldout_by_fold(
         base, c, names if names is not None else [[f"run{k}"] for k in range(n)])
     return c
 
@@ -648,17 +652,18 @@ DRIFT_H = [1951, 14438, 10331, -271810, 242687, 2645, 20783, 3113]
 
 
 def test_one_run_whose_prediction_fails_does_not_veto_an_effect_the_others_confirm():
-    from identify.diagnosis.rounds import _closes, _try
+    from identify.diagnosis.scores import closes_gap
+    from identify.diagnosis.selection import try_named
 
     c = _drift_folds(DRIFT_G, DRIFT_H)
     assert c["heldout_delta_nll"] == pytest.approx(24138, abs=1)  # 12 % of the fitted gain: the sum fails
     a = c["heldout_set_aside"]
     assert a["runs"] == ["run3"] and a["heldout_delta_nll_kept"] == pytest.approx(295948, abs=1)
     assert a["fitted_delta_nll_kept"] == pytest.approx(145400, abs=1)
-    assert _closes(c)
+    assert closes_gap(c)
     c.update(effect="drift", dr=np.ones(3), delta_aic=-415000.0, status="Solve_Succeeded", estimate_text="r_d",
              closes=True)
-    chosen, _ = _try(c, [])
+    chosen, _ = try_named(c, [])
     assert chosen is c and "every run but run3" in c["note"] and "300.0 -> 50.0 nm" in c["note"]
 
 
@@ -666,24 +671,25 @@ def test_a_gain_that_lies_in_the_one_run_set_aside_is_not_named():
     """An overfitted run: the fitted gain lies in it and its prediction does not keep it;
     setting it aside leaves too little of the excess and the other runs' gap unchanged,
     and two failing runs are not one."""
-    from identify.diagnosis.rounds import _closes, _try
+    from identify.diagnosis.scores import closes_gap
+    from identify.diagnosis.selection import try_named
 
     overfit = _drift_folds([10, 10, 10, 200_000, 10, 10, 10, 10], [5, 5, 5, 1000, 5, 5, 5, 5],
                            at_floor=True, without_after=0.3)
-    assert overfit["heldout_set_aside"]["runs"] == ["run3"] and not _closes(overfit)
+    assert overfit["heldout_set_aside"]["runs"] == ["run3"] and not closes_gap(overfit)
     overfit.update(effect="topography", dr=np.ones(3), delta_aic=-4e5, status="Solve_Succeeded", estimate_text="a",
                    closes=False)
-    assert _try(overfit, [])[0] is None
+    assert try_named(overfit, [])[0] is None
     assert "(0 % without the run run3)" in overfit["note"] and "without the run run3 it removes 0 %" in overfit["note"]
     two = list(DRIFT_H)
     two[4] = -300_000  # a second run failing as badly
-    assert not _closes(_drift_folds(DRIFT_G, two))
+    assert not closes_gap(_drift_folds(DRIFT_G, two))
     # with fewer than five runs none is set aside: the rest would be too few to decide
     few = _drift_folds(DRIFT_G[:4], DRIFT_H[:4])
-    assert few["heldout_set_aside"] is None and not _closes(few)
+    assert few["heldout_set_aside"] is None and not closes_gap(few)
     # nor a fold of several runs (k-fold)
     kfold = _drift_folds(DRIFT_G, DRIFT_H, names=[["a", "b"]] + [[f"run{k}"] for k in range(1, 8)])
-    assert kfold["heldout_set_aside"] is None and not _closes(kfold)
+    assert kfold["heldout_set_aside"] is None and not closes_gap(kfold)
     # a held-out gain that cannot be compared (different rows) sets nothing aside
     assert _drift_folds(DRIFT_G, DRIFT_H, ho_total=float("nan"))["heldout_set_aside"] is None
 
@@ -692,20 +698,21 @@ def test_a_run_the_candidate_fits_worse_is_never_set_aside():
     """A run whose fit the candidate makes worse contradicts it: setting it aside would
     leave a kept gain larger than the whole (the review's counter-example: held-out Δnll
     −95 000 in all, named before this guard)."""
-    from identify.diagnosis.rounds import _closes
+    from identify.diagnosis.scores import closes_gap
 
     c = _drift_folds([2e4] * 7 + [-5e4], [1.5e4] * 7 + [-2e5])
-    assert c["heldout_delta_nll"] < 0 and c["heldout_set_aside"] is None and not _closes(c)
+    assert c["heldout_delta_nll"] < 0 and c["heldout_set_aside"] is None and not closes_gap(c)
 
 
 def test_the_note_of_a_run_set_aside_without_its_gaps():
-    from identify.diagnosis.rounds import _closes, _try
+    from identify.diagnosis.scores import closes_gap
+    from identify.diagnosis.selection import try_named
 
     # no µm gaps without the run: named by the likelihood on the others (a gap at the floor)
     c = _drift_folds(DRIFT_G, DRIFT_H, without=float("nan"), at_floor=True)
     c.update(effect="drift", dr=np.ones(3), delta_aic=-4e5, status="Solve_Succeeded", estimate_text="r_d",
-             closes=_closes(c))
-    assert _try(c, [])[0] is c and "nan" not in c["note"] and "every run but run3" in c["note"]
+             closes=closes_gap(c))
+    assert try_named(c, [])[0] is c and "nan" not in c["note"] and "every run but run3" in c["note"]
 
 
 def test_the_per_fold_chi2_of_k_folds():
@@ -718,9 +725,10 @@ def test_the_per_fold_chi2_of_k_folds():
 
 
 def test_score_sets_a_run_aside_from_the_workers_per_fold_chi2():
-    """The wiring in _score: from the χ² a worker returns per fold to the named drift
+    """The wiring in score_round: from the χ² a worker returns per fold to the named drift
     (the measured per-fold gains of 7c7f030, base χ² made up around them)."""
-    from identify.diagnosis.rounds import _score, _try
+    from identify.diagnosis.scores import score_round
+    from identify.diagnosis.selection import try_named
 
     base_fit = [4652.2, 26669.6, 21002.4, 125205.8, 187027.5, 10498.2, 41650.4, 7774.7]
     base_ho = [4623.6, 31191.3, 20685.8, 363723.8, 485793.7, 10498.2, 41664.6, 6283.2]
@@ -740,26 +748,26 @@ def test_score_sets_a_run_aside_from_the_workers_per_fold_chi2():
     cand = res("drift", drift_fit, drift_ho, 31)
     cand["heldout"]["gap_um"], cand["heldout"]["gap_um_without_fold"] = 0.321, [0.05] * 8
     names = [[f"run{k}"] for k in range(8)]
-    (c,) = _score([base, cand], base, DiagnosisOptions(), 1, fold_names=names)
+    (c,) = score_round([base, cand], base, DiagnosisOptions(), 1, fold_names=names)
     assert c["heldout_set_aside"]["runs"] == ["run3"] and c["closes"]
     assert c["heldout_delta_nll"] == pytest.approx(0.5 * (sum(base_ho) - sum(drift_ho)))
-    assert _try(c, [])[0] is c
-    from identify.diagnosis.rounds import _CAND_KEYS
+    assert try_named(c, [])[0] is c
+    from identify.diagnosis.result import CANDIDATE_KEYS
 
-    assert {"heldout_by_fold", "heldout_set_aside"} <= set(_CAND_KEYS)
+    assert {"heldout_by_fold", "heldout_set_aside"} <= set(CANDIDATE_KEYS)
 
 
 def test_held_out_gain_and_excess_share_edge_cases():
-    from identify.diagnosis.rounds import _explained_share, _heldout_dnll
+    from identify.diagnosis.scores import explained_share, heldout_dnll
 
     a = dict(chi2=900.0, n_rows=334)
-    assert _heldout_dnll(dict(chi2=1000.0, n_rows=334), a) == 50.0
-    assert np.isnan(_heldout_dnll(dict(chi2=1000.0, n_rows=330), a))  # not the same rows
-    assert np.isnan(_heldout_dnll(dict(chi2=1000.0, n_rows=334, unverified_folds=1), a))  # contradicted
-    assert np.isnan(_heldout_dnll(dict(gap_um=float("nan")), a))  # not computed
+    assert heldout_dnll(dict(chi2=1000.0, n_rows=334), a) == 50.0
+    assert np.isnan(heldout_dnll(dict(chi2=1000.0, n_rows=330), a))  # not the same rows
+    assert np.isnan(heldout_dnll(dict(chi2=1000.0, n_rows=334, unverified_folds=1), a))  # contradicted
+    assert np.isnan(heldout_dnll(dict(gap_um=float("nan")), a))  # not computed
     # a model at the noise: the share is of the chance spread, not of a near-zero excess
     base = dict(chi2=10742.0 + 5.0, n_obs=10769, n_eff=27)
-    assert _explained_share(dict(delta_nll=6.0), base) == pytest.approx(12.0 / (3 * np.sqrt(2 * 10742)))
+    assert explained_share(dict(delta_nll=6.0), base) == pytest.approx(12.0 / (3 * np.sqrt(2 * 10742)))
 
 
 @pytest.fixture(scope="module")
@@ -795,12 +803,12 @@ def test_a_named_model_decides_its_sequence_from_the_detected_one_too(offset_bas
     model's sequence is decided again from its own (where it stands here) and from the
     sequence as detected, and the lower excess χ² is kept (measured: χ² 2996.6 on the
     baseline's sequence, 2557.2 from the detected one), then measured in round 2."""
-    from identify.diagnosis.rounds import _as_detected
+    from identify.diagnosis.resequence import as_detected
 
     runs = offset_baseline.problem.runs
-    det = _as_detected(runs)
+    det = as_detected(runs)
     assert det is not None and any(not np.array_equal(d.trigger_steps, r.trigger_steps) for d, r in zip(det, runs))
-    assert _as_detected(det) is None  # nothing changed: nothing else to try
+    assert as_detected(det) is None  # nothing changed: nothing else to try
     said = []
     res = diagnose(None, baseline=offset_baseline,
                    options=DiagnosisOptions(effects=("load_offset",), resequence=True), progress=said.append)
@@ -816,12 +824,12 @@ def test_auto_resequencing_only_while_the_named_model_misfits(offset_baseline):
     """The default decides the sequence again only while the named model's held-out gap is
     above the tolerance (measured: the topography set went from 1.51× the noise and
     `unexplained` to 1.08× and `adequate`); a model at the noise keeps its sequence."""
-    from identify.diagnosis.rounds import _at_noise
+    from identify.diagnosis.selection import at_noise
 
     opts = DiagnosisOptions()
-    assert _at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.029)), opts)
-    assert not _at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.031)), opts)
-    assert not _at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=float("nan"))), opts)
+    assert at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.029)), opts)
+    assert not at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.031)), opts)
+    assert not at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=float("nan"))), opts)
     # named there with its held-out gap at 1.68× the noise (four short runs)
     for tol, again in ((2.0, False), (1.5, True)):
         said = []
@@ -835,7 +843,7 @@ def test_a_candidate_that_predicts_the_held_out_runs_worse_in_all_is_not_named()
     """Measured on the out-of-library set (each run's load ±15 % off, d54fbfe): the spring
     nonlinearity kept 4611 of its 7365 without the 10 Hz run (63 %), but its held-out Δnll
     over all runs was −4997; it was named then. Per-fold figures made up to those sums."""
-    from identify.diagnosis.rounds import _closes
+    from identify.diagnosis.scores import closes_gap
 
     g = [1000.0, 1200.0, 800.0, 1500.0, 1238.4, 900.0, 900.0, 1064.8]
     h = [700.0, 700.0, 500.0, 900.0, -9608.7, 600.0, 600.0, 611.4]
@@ -844,7 +852,7 @@ def test_a_candidate_that_predicts_the_held_out_runs_worse_in_all_is_not_named()
     assert c["explained_share"] > 0.3 and a["explained_share"] > 0.3 and a["heldout_delta_nll_kept"] > 0.5 * 7364.8
     assert a["runs"] == ["run4"] and a["heldout_delta_nll_kept"] == pytest.approx(4611.4)
     assert a["fitted_delta_nll_kept"] == pytest.approx(7364.8) and c["heldout_delta_nll"] < 0
-    assert not _closes(c)
+    assert not closes_gap(c)
 
 
 def test_a_sequence_decided_again_is_measured_in_a_final_round(offset_baseline, monkeypatch):
@@ -861,7 +869,7 @@ def test_a_sequence_decided_again_is_measured_in_a_final_round(offset_baseline, 
         new_runs[:] = [copy.copy(r) for r in runs]
         return dict(current), list(new_runs), True
 
-    monkeypatch.setattr(dg, "_resequence", changed)
+    monkeypatch.setattr(dg, "resequence", changed)
     res = diagnose(None, baseline=offset_baseline,
                    options=DiagnosisOptions(effects=("load_offset",), resequence=True))
     assert res.effects == ["load_offset"] and new_runs
@@ -878,7 +886,7 @@ def test_a_sequence_that_cannot_be_decided_again_leaves_the_named_model(offset_b
     def broken(current, runs, fopts, prob0, say):
         raise RuntimeError("no arcs")
 
-    monkeypatch.setattr(dg, "_resequence", broken)
+    monkeypatch.setattr(dg, "resequence", broken)
     opts = DiagnosisOptions(effects=("load_offset",), folds=2, resequence=True)
     res = diagnose(None, baseline=offset_baseline, options=opts)
     assert res.effects == ["load_offset"] and res.timing["refits"] == 2
@@ -890,15 +898,16 @@ def test_away_from_the_encodings_floor_only_the_gap_in_um_names():
     """Measured on the out-of-library set (d6efe11): a load offset with Δnll 5276 fitted and
     8375 held out, while the held-out gap (4.8× the noise) went 92.2 -> 89.9 nm; it was
     named. The likelihood test is for a gap at the encoding's floor."""
-    from identify.diagnosis.rounds import _closes, _try
+    from identify.diagnosis.scores import closes_gap
+    from identify.diagnosis.selection import try_named
 
     off = _cand(5275.8, 8375.5, ho_before=0.0922, ho_after=0.0899, noise=0.0190)
-    assert not off["at_floor"] and off["explained_share"] > 0.3 and not _closes(off)
+    assert not off["at_floor"] and off["explained_share"] > 0.3 and not closes_gap(off)
     off.update(effect="load_offset", dr=np.ones(3), delta_aic=-10549.5, status="Solve_Succeeded",
                estimate_text="load_offset = 7.2e-07", closes=False)
-    assert _try(off, [])[0] is None and "the likelihood test does not apply" in off["note"], off["note"]
+    assert try_named(off, [])[0] is None and "the likelihood test does not apply" in off["note"], off["note"]
     # the same gains with the gap at the floor: named by the likelihood
-    assert _closes(_cand(5275.8, 8375.5, ho_before=0.0205, ho_after=0.0212, noise=0.0150))
+    assert closes_gap(_cand(5275.8, 8375.5, ho_before=0.0205, ho_after=0.0212, noise=0.0150))
 
 
 def test_a_weaker_candidate_is_not_named_while_a_better_one_could_not_be_judged():
@@ -906,7 +915,7 @@ def test_a_weaker_candidate_is_not_named_while_a_better_one_could_not_be_judged(
     the held-out gap but ended Line_Search_Failed, and a load offset closing 38 % was named
     in its place. A converged better candidate that does not close still lets the next
     one be tried."""
-    from identify.diagnosis.rounds import _select
+    from identify.diagnosis.selection import select_named
 
     def cand(effect, daic, status, closes):
         return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic, status=status,
@@ -916,17 +925,17 @@ def test_a_weaker_candidate_is_not_named_while_a_better_one_could_not_be_judged(
 
     beta = cand("spring_nonlinearity", -1700.6, "Line_Search_Failed", True)
     off = cand("load_offset", -500.0, "Solve_Succeeded", True)
-    assert _select([beta, off], {}) == (None, None)
+    assert select_named([beta, off], {}) == (None, None)
     assert "did not converge" in beta["note"] and "not tried for a name: spring_nonlinearity" in off["note"]
     # the better one converged but closes nothing: the next is named
     beta = cand("spring_nonlinearity", -1700.6, "Solve_Succeeded", False)
     beta["heldout_gap_ratio_before"] = 2.0
     off = cand("load_offset", -500.0, "Solve_Succeeded", True)
-    assert _select([beta, off], {})[0] is off
+    assert select_named([beta, off], {})[0] is off
     # the better one did not converge and closes nothing: the next is named too
     beta = cand("spring_nonlinearity", -1700.6, "Maximum_Iterations_Exceeded", False)
     off = cand("load_offset", -500.0, "Solve_Succeeded", True)
-    assert _select([beta, off], {})[0] is off
+    assert select_named([beta, off], {})[0] is off
 
 
 def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_the_model_mimics(monkeypatch):
@@ -934,7 +943,7 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
     (ΔAIC −32.7) but confounded with μmax, μmin, τ, and a load offset the data do not have
     (ΔAIC −27.1, residual changes at cosine 0.57 to A's) was named. Now the load offset is
     refitted with A free too, and named only if it still gains significantly."""
-    import identify.diagnosis.rounds as dg
+    import identify.diagnosis.selection as dg  # (where refit_beside runs its refits)
 
     def cand(effect, daic, confounded):
         return dict(effect=effect, ok=True, significant=True, confounded_with=confounded, delta_aic=daic,
@@ -965,8 +974,8 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
         vs = cand("velocity_strengthening", -32.7, ["mu_max", "mu_min", "tau"])
         off = cand("load_offset", -27.1, [])
         monkeypatch.setattr(dg, "run_candidate", refit(gain))
-        group = dg._beside(off, [vs, off], dict(n_obs=5000), {}, [], identify.FitOptions(), DiagnosisOptions(),
-                           1, Now(), [], 14, lambda m: None)
+        group = dg.refit_beside(off, [vs, off], dict(n_obs=5000), {}, [], identify.FitOptions(), DiagnosisOptions(),
+                                1, Now(), [], 14, lambda m: None)
         return group, off, vs
 
     group, off, vs = check(gain=1.0)  # beside A, the offset gains one likelihood unit
@@ -977,7 +986,7 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
     assert group["effects"] == ["velocity_strengthening", "load_offset"] and off["confounded_with"] == [
         "velocity_strengthening"]
     assert "not beside velocity_strengthening" in off["note"] and off["beside"][0]["significant"] is False
-    assert dg._select([vs, off], {}) == (None, None)  # and the selection names nothing
+    assert dg.select_named([vs, off], {}) == (None, None)  # and the selection names nothing
     assert "not beside velocity_strengthening" in off["note"] and "mimic it" in vs["note"]
     group, off, _ = check(gain=40.0)  # something of its own beyond A: nameable
     assert group is None and off["confounded_with"] == [] and off["beside"][0]["significant"] is True
@@ -985,8 +994,8 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
     assert group is None and off["confounded_with"] == [] and "not checked beside" in off["note"]
 
     def beside(c, scored):
-        return dg._beside(c, scored, dict(n_obs=5000), {}, [], identify.FitOptions(), DiagnosisOptions(), 1, Now(),
-                          [], 14, lambda m: None)
+        return dg.refit_beside(c, scored, dict(n_obs=5000), {}, [], identify.FitOptions(), DiagnosisOptions(), 1,
+                               Now(), [], 14, lambda m: None)
 
     n = len(seen)
     # a rival that fits worse is no reason to refit
@@ -1004,7 +1013,7 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
 
 
 def test_a_choice_demoted_beside_a_rival_gives_way_to_the_next():
-    from identify.diagnosis.rounds import _choose
+    from identify.diagnosis.selection import choose_named
 
     def cand(effect, daic):
         return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
@@ -1022,12 +1031,12 @@ def test_a_choice_demoted_beside_a_rival_gives_way_to_the_next():
             return dict(effects=["velocity_strengthening", "load_offset"], why="w", closes=True)
         return None
 
-    chosen, groups = _choose([off, drift], {}, check)
+    chosen, groups = choose_named([off, drift], {}, check)
     assert chosen is drift and asked == ["load_offset", "drift"]
     assert [g["effects"] for g in groups] == [["velocity_strengthening", "load_offset"]]
     off, drift = cand("load_offset", -30.0), cand("drift", -20.0)
-    assert _choose([off, drift], {}, lambda c: None) == (off, [])
-    assert _choose([], {}, check) == (None, [])
+    assert choose_named([off, drift], {}, lambda c: None) == (off, [])
+    assert choose_named([], {}, check) == (None, [])
 
 
 def test_a_candidate_that_explains_much_but_closes_little_is_judged_on_its_own_mode_sequence():
@@ -1035,7 +1044,7 @@ def test_a_candidate_that_explains_much_but_closes_little_is_judged_on_its_own_m
     fit moved 112 triggers and inserted 15 slips; the law removed 50 % of the excess χ²
     but closed 28 % of the held-out gap on that sequence, and nothing was named. Such a
     candidate is measured on the sequence it decides itself before a weaker one is tried."""
-    from identify.diagnosis.rounds import _choose, _select
+    from identify.diagnosis.selection import choose_named, select_named
 
     def cand(effect, daic, closed, share):
         return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
@@ -1053,24 +1062,24 @@ def test_a_candidate_that_explains_much_but_closes_little_is_judged_on_its_own_m
         return run
 
     law, off = cand("aging_logarithmic", -28000.0, 0.28, 0.5), cand("load_offset", -30.0, 0.4, 0.5)
-    chosen, groups = _choose([law, off], {}, lambda c: None, retry(0.75))
+    chosen, groups = choose_named([law, off], {}, lambda c: None, retry(0.75))
     assert chosen is law and groups == [] and asked == ["aging_logarithmic"]
     assert "on the mode sequence it decides (40 trigger(s) moved" in law["note"] and "closes 75 %" in law["note"]
     assert law["closes"] is True
     # closing little there too: judged as before, the next one named, the reason kept
     law, off = cand("aging_logarithmic", -28000.0, 0.28, 0.5), cand("load_offset", -30.0, 0.4, 0.5)
-    assert _select([law, off], {}, retry(0.1))[0] is off
+    assert select_named([law, off], {}, retry(0.1))[0] is off
     assert "closes 10 %" in law["note"] and law["closes"] is False
     asked.clear()
-    assert _select([law, off], {}, retry(0.9))[0] is off and asked == []  # measured once only
+    assert select_named([law, off], {}, retry(0.9))[0] is off and asked == []  # measured once only
     # nor for a candidate that explains little of the misfit, or one at the encoding's floor
     for kw in (dict(explained_share=0.1), dict(at_floor=True), dict(status="Line_Search_Failed")):
         law = {**cand("aging_logarithmic", -28000.0, 0.28, 0.5), **kw}
-        _select([law], {}, retry(0.9))
+        select_named([law], {}, retry(0.9))
         assert asked == [] and "own_sequence" not in law
     # with resequencing off there is no retry: the old judgement
     law = cand("aging_logarithmic", -28000.0, 0.28, 0.5)
-    assert _select([law], {}) == (None, None) and "own_sequence" not in law
+    assert select_named([law], {}) == (None, None) and "own_sequence" not in law
 
 
 def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(monkeypatch):
@@ -1098,7 +1107,7 @@ def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(mo
             f.set_result(fn(task))
             return f
 
-    monkeypatch.setattr(dg, "_resequence", reseq)
+    monkeypatch.setattr(dg, "resequence", reseq)
     monkeypatch.setattr(dg, "run_candidate", run)
     model = dict(values={"mu_max": 0.8}, free=("mu_max",), w=np.zeros(3), ev_M=np.zeros(1), chi2=20.0, n_eff=1)
     base = dict(gap=dict(noise_um=0.025, gap_um=0.1), heldout=dict(gap_um=0.172))
@@ -1124,11 +1133,11 @@ def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(mo
     rec = own()["own_sequence"]
     assert rec["heldout_gap_before_um"] == 0.15
     assert rec["closed_fraction"] == pytest.approx((ex(0.15) - ex(0.05)) / ex(0.15))
-    assert "against the current model's 150.0 nm on the sequence it decides again" in dg._own_text(rec)
+    assert "against the current model's 150.0 nm on the sequence it decides again" in dg.own_text(rec)
     assert rec["refits"] == 2
     # decided from the detected sequence: its counts are from there, and the text says so
-    assert "it decides (from the detected one, " in dg._own_text(dict(rec, from_detected=True))
-    assert "from the detected one" not in dg._own_text(rec)
+    assert "it decides (from the detected one, " in dg.own_text(dict(rec, from_detected=True))
+    assert "from the detected one" not in dg.own_text(rec)
     # a failure is recorded, not raised: the candidate is judged on the current sequence,
     # also when only the control failed (its comparison alone would be the unfair one)
 
@@ -1137,13 +1146,16 @@ def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(mo
             raise RuntimeError("no finite start")
         return reseq(model, *a)
 
-    monkeypatch.setattr(dg, "_resequence", broken)
+    monkeypatch.setattr(dg, "resequence", broken)
     c = own(status="Solve_Succeeded", significant=True, ok=True, confounded_with=[], delta_aic=-28000.0,
             closes=False, at_floor=False, heldout_gap_ratio_before=7.0, estimate_text="B = 0.08", dr=np.ones(2))
     rec = c["own_sequence"]
     assert rec["changed"] is False and "no finite start" in rec["error"] and "closed_fraction" not in rec
-    assert rec["refits"] == 1 and "_own" not in c and not dg._worth_own_sequence(c)
-    assert dg._route(c) is None and dg._try(c, [])[0] is None and "failed: RuntimeError" in c["note"]
+    from identify.diagnosis.scores import closing_route
+    from identify.diagnosis.selection import try_named, worth_own_sequence
+
+    assert rec["refits"] == 1 and "_own" not in c and not worth_own_sequence(c)
+    assert closing_route(c) is None and try_named(c, [])[0] is None and "failed: RuntimeError" in c["note"]
 
 
 def test_a_candidate_whose_interval_holds_its_null_is_not_named():
@@ -1151,7 +1163,7 @@ def test_a_candidate_whose_interval_holds_its_null_is_not_named():
     Δnll 19.9 (p = 2.7e-10) with dc = 7.1 ± 8.0 nm, 95 % interval 0.8–64 nm about its null of
     20 nm, and its held-out gain lay in one run it did not fit better; it was named a third
     effect. The interval is the fit's own: dc's is on the log scale."""
-    from identify.diagnosis.rounds import _select, _try, _undetermined, _worth_own_sequence
+    from identify.diagnosis.selection import select_named, try_named, undetermined, worth_own_sequence
 
     def cand(effect, daic, par, value, ci, null):
         return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
@@ -1165,27 +1177,27 @@ def test_a_candidate_whose_interval_holds_its_null_is_not_named():
 
     off = cand("load_offset", -20.0, "load_offset", 2e-6, [1.9e-6, 2.1e-6], 0.0)
     r = rej()
-    assert _select([r, off], {})[0] is off  # (their residual changes are parallel: no tie with r)
+    assert select_named([r, off], {})[0] is off  # (their residual changes are parallel: no tie with r)
     assert r["undetermined"] and "dc: 8e-10 to 6.37e-08 holds the null 2e-08" in r["note"]
-    assert _select([rej()], {}) == (None, None)
+    assert select_named([rej()], {}) == (None, None)
     # a log-scaled estimate far from its null in its own interval is determined, even with a
     # relative standard error that a linear z would call 1.6
     far = cand("rejuvenation", -37.8, "dc", 1e-6, [3.1e-7, 3.2e-6], 2e-8)
-    assert not _undetermined(far) and _try(far, [])[0] is far
+    assert not undetermined(far) and try_named(far, [])[0] is far
     # no interval at all: nothing determined; a law has no null to exclude
-    assert _undetermined(cand("drift", -30.0, "drift_rate", 1e-9, [float("nan")] * 2, 0.0))
+    assert undetermined(cand("drift", -30.0, "drift_rate", 1e-9, [float("nan")] * 2, 0.0))
     c = cand("drift", -30.0, "drift_rate", 1e-9, None, 0.0)
     c["estimates"]["drift_rate"]["stderr"] = None
-    assert _try(c, []) == (None, None) and "no standard error" in c["note"]
+    assert try_named(c, []) == (None, None) and "no standard error" in c["note"]
     # a standard error without an interval: value ± 1.96 of it
     c = cand("drift", -30.0, "drift_rate", 5e-8, None, 0.0)
     c["estimates"]["drift_rate"]["stderr"] = 1e-9
-    assert not _undetermined(c) and _undetermined({**c, "estimates": {"drift_rate": dict(value=1.0, stderr=1.0)}})
-    assert not _undetermined(dict(effect="aging_logarithmic", estimates={}, nulls={}))
+    assert not undetermined(c) and undetermined({**c, "estimates": {"drift_rate": dict(value=1.0, stderr=1.0)}})
+    assert not undetermined(dict(effect="aging_logarithmic", estimates={}, nulls={}))
     # nor is an undetermined one measured on its own mode sequence
     r = rej()
     r.update(closes=False, explained_share=0.9)
-    assert not _worth_own_sequence(r)
+    assert not worth_own_sequence(r)
 
 
 def _not_significant(effect, estimates, at_magnitude, r2=0.009):
@@ -1202,13 +1214,13 @@ def test_a_refit_that_could_not_start_says_so():
     """A law's refit that stopped at once because the model is not differentiable at its
     start (identify.fitting.convergence.NOT_DIFFERENTIABLE; measured: the logistic law from the
     exponential baseline) is no evidence, and not "a local solution" either."""
-    from identify.diagnosis.rounds import _score
+    from identify.diagnosis.scores import score_round
     from identify.fitting.convergence import NOT_DIFFERENTIABLE
 
     est = dict(mu_max=dict(value=0.79, stderr=0.006), mu_min=dict(value=0.66, stderr=3e-18))
     base = _not_significant(None, est, None)
     law = dict(_not_significant("aging_logistic", est, None), status=NOT_DIFFERENTIABLE, chi2=1.2e9)
-    (c,) = _score([base, law], base, DiagnosisOptions(), 1)
+    (c,) = score_round([base, law], base, DiagnosisOptions(), 1)
     assert not c["significant"] and not c["named"]
     assert c["note"].startswith("the refit could not start") and "local solution" not in c["note"]
 
@@ -1217,7 +1229,7 @@ def test_a_candidate_absorbed_at_its_realistic_magnitude_is_reported_confounded_
     """The damping set's numbers (measured, 8 runs): the refit does not leave c_extra = 0,
     R² 0.009 with the model there, but held at 2e-5 N s/m it fits as well with A, μmin and
     μmax moved: confounded with them, never named; a magnitude the data exclude says so."""
-    from identify.diagnosis.rounds import _score
+    from identify.diagnosis.scores import score_round
 
     est = dict(A=dict(value=0.0236, stderr=0.0035), c_extra=dict(value=0.0, stderr=8.7e-7))
     moved = [dict(parameter="A", value=0.0236, at_magnitude=0.0181, z=-1.57),
@@ -1227,72 +1239,73 @@ def test_a_candidate_absorbed_at_its_realistic_magnitude_is_reported_confounded_
                     absorbed=True, partners=["A", "mu_min"], moved=moved, status="Stopped_Cannot_Matter",
                     iterations=6, lower_bound=False, stderr_checked=True)
     base = _not_significant(None, est, None)
-    (c,) = _score([base, _not_significant("damping", est, absorbed)], base, DiagnosisOptions(), 1)
+    (c,) = score_round([base, _not_significant("damping", est, absorbed)], base, DiagnosisOptions(), 1)
     assert not c["significant"] and c["confounded_with"] == ["A", "mu_min"]
     assert "not excluded at its realistic magnitude c_extra = 20 µN s/m" in c["note"]
     assert "A 0.0236 -> 0.0181 (-1.6 σ)" in c["note"] and "tau" not in c["note"]
     wide = dict(absorbed, partners=["A"], moved=[dict(moved[0], z=0.0, at_magnitude=0.0236, stderr=0.0035,
                                                        stderr_at_magnitude=0.0117, wider=3.34)])
-    (c,) = _score([base, _not_significant("damping", est, wide)], base, DiagnosisOptions(), 1)
+    (c,) = score_round([base, _not_significant("damping", est, wide)], base, DiagnosisOptions(), 1)
     assert c["confounded_with"] == ["A"]
     assert "A 0.0236 -> 0.0236 (+0.0 σ; its standard error 0.0035 -> 0.0117)" in c["note"]
     # judged again against this round's best fit: the current model re-solved lower than
     # the χ² the worker knew puts the magnitude 5 units out
     lower = _not_significant(None, est, None)
     lower["chi2"] -= 10.0
-    (c,) = _score([lower, _not_significant("damping", est, dict(absorbed))], lower, DiagnosisOptions(), 1)
+    (c,) = score_round([lower, _not_significant("damping", est, dict(absorbed))], lower, DiagnosisOptions(), 1)
     assert c["confounded_with"] == [] and c["at_magnitude"]["absorbed"] is False
     assert c["at_magnitude"]["delta_nll"] == pytest.approx(5.4) and "excluded" in c["note"]
     # seen by nothing: no partner, not confounded, said so
     blind = dict(absorbed, partners=[], moved=[dict(moved[2], z=0.1)])
-    (c,) = _score([base, _not_significant("damping", est, blind)], base, DiagnosisOptions(), 1)
+    (c,) = score_round([base, _not_significant("damping", est, blind)], base, DiagnosisOptions(), 1)
     assert c["confounded_with"] == [] and "none losing half its information: the data do not see it" in c["note"]
-    (c,) = _score([base, _not_significant("damping", est, dict(blind, iterations=1))], base, DiagnosisOptions(), 1)
+    (c,) = score_round([base, _not_significant("damping", est, dict(blind, iterations=1))], base, DiagnosisOptions(), 1)
     assert "as the current model stands" in c["note"]
-    (c,) = _score([base, _not_significant("damping", est, dict(blind, stderr_checked=False))], base,
+    (c,) = score_round([base, _not_significant("damping", est, dict(blind, stderr_checked=False))], base,
                   DiagnosisOptions(), 1)
     assert "could not be computed" in c["note"] and "do not see it" not in c["note"]
     # excluded (the solve stopped once it could not get within the quantile: a bound)
     out = dict(absorbed, absorbed=False, delta_nll=264.0, partners=[], lower_bound=True)
-    (c,) = _score([base, _not_significant("damping", est, out)], base, DiagnosisOptions(), 1)
+    (c,) = score_round([base, _not_significant("damping", est, out)], base, DiagnosisOptions(), 1)
     assert c["confounded_with"] == []
     assert "excluded at its realistic magnitude c_extra = 20 µN s/m: Δnll ≥ 264" in c["note"]
-    (c,) = _score([base, _not_significant("damping", est, dict(absorbed, absorbed=None, error="boom"))], base,
+    (c,) = score_round([base, _not_significant("damping", est, dict(absorbed, absorbed=None, error="boom"))], base,
                   DiagnosisOptions(), 1)
     assert c["confounded_with"] == [] and "not settled" in c["note"] and "boom" in c["note"]
     # fitting better held at the magnitude than its own refit: the refit is local, no
     # parameter stands in for it: not confounded, not excluded, said so
     better = dict(absorbed, chi2=10538.45 - 40.0, delta_nll=-20.0, absorbed=False, better=True, partners=[])
-    (c,) = _score([base, _not_significant("damping", est, better)], base, DiagnosisOptions(), 1)
+    (c,) = score_round([base, _not_significant("damping", est, better)], base, DiagnosisOptions(), 1)
     assert c["confounded_with"] == [] and c["at_magnitude"]["better"] and not c["at_magnitude"]["absorbed"]
     assert "fits better at its realistic magnitude c_extra = 20 µN s/m than its refit (Δnll -20.0" in c["note"]
     assert "local solution" in c["note"] and "excluded" not in c["note"].replace("not shown absent", "")
     # an absorbed record that this round's best puts beyond the quantile below: better
-    (c,) = _score([base, _not_significant("damping", est, dict(absorbed, chi2=10538.45 - 9.0))], base,
+    (c,) = score_round([base, _not_significant("damping", est, dict(absorbed, chi2=10538.45 - 9.0))], base,
                   DiagnosisOptions(), 1)
     assert c["at_magnitude"]["better"] and c["confounded_with"] == []
     # better only against the worker's reference, within the quantile of this round's best:
     # judged as absorbed, its partners from the moves alone
     lower = _not_significant(None, est, None)
     lower["chi2"] -= 30.0
-    (c,) = _score([lower, _not_significant("damping", est, dict(better, chi2=lower["chi2"] - 2.0))], lower,
+    (c,) = score_round([lower, _not_significant("damping", est, dict(better, chi2=lower["chi2"] - 2.0))], lower,
                   DiagnosisOptions(), 1)
     m = c["at_magnitude"]
     assert m["absorbed"] and not m["better"] and m["delta_nll"] == pytest.approx(-1.0)
     assert m["partners"] == ["A", "mu_min"] and c["confounded_with"] == ["A", "mu_min"]
-    from identify.diagnosis.rounds import _CAND_KEYS
+    from identify.diagnosis.result import CANDIDATE_KEYS
 
-    assert "at_magnitude" in _CAND_KEYS
+    assert "at_magnitude" in CANDIDATE_KEYS
 
 
 def test_the_magnitude_checked_is_the_effects_realistic_one_parameter():
-    from identify.diagnosis.rounds import _magnitude
+    from identify.diagnosis.tasks import realistic_magnitude
     from identify.model.effects import display
 
-    assert _magnitude(get_effect("damping"), {"c_extra": 0.0}) == ("c_extra", 2e-5)
-    assert _magnitude(get_effect("stick_threshold"), {"v_stick": 1e-5}) == ("v_stick", 1e-4)
-    assert _magnitude(get_effect("stick_threshold"), {"v_stick": 1e-4}) is None  # already there
-    assert _magnitude(get_effect("topography"), {"topo_amp": 0.0, "topo_wavelength": 5e-6, "topo_phase": 0.0}) is None
+    assert realistic_magnitude(get_effect("damping"), {"c_extra": 0.0}) == ("c_extra", 2e-5)
+    assert realistic_magnitude(get_effect("stick_threshold"), {"v_stick": 1e-5}) == ("v_stick", 1e-4)
+    assert realistic_magnitude(get_effect("stick_threshold"), {"v_stick": 1e-4}) is None  # already there
+    flat = {"topo_amp": 0.0, "topo_wavelength": 5e-6, "topo_phase": 0.0}
+    assert realistic_magnitude(get_effect("topography"), flat) is None
     assert display("c_extra", 2e-5) == "20 µN s/m" and display("step_scale", 1.05) == "1.05"
     assert DiagnosisOptions().magnitude_check and not DiagnosisOptions(magnitude_check=False).magnitude_check
 
@@ -1304,14 +1317,15 @@ def test_the_magnitude_check_on_model_made_data(small_fit):
     import dataclasses
 
     from identify.diagnosis.candidates import run_candidate
-    from identify.diagnosis.rounds import _tasks
+    from identify.diagnosis.tasks import candidate_tasks
 
     prob, w = small_fit.problem, small_fit.w
     values = {**identify.parameter_set("FOTAS"), **prob.values, **small_fit.values}
     r0 = prob.residuals(w)
     current = dict(values=values, free=tuple(prob.theta.names), law="exponential", w=w, ev_M=np.array(prob.ev_M),
                    n_theta=prob.n_theta, chi2=float(r0 @ r0) + prob.chi2_constant(), n_eff=prob.n_effective())
-    tasks, _ = _tasks(("step_size", "motion_blur"), current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [])
+    tasks, _ = candidate_tasks(("step_size", "motion_blur"), current, prob.runs, prob.opts, [], DiagnosisOptions(),
+                               1, [])
     got = {t.effect: run_candidate(t) for t in tasks if t.effect}
     step, blur = got["step_size"]["at_magnitude"], got["motion_blur"]["at_magnitude"]
     assert step["absorbed"] is False and step["delta_nll"] > 10 * step["needed_delta_nll"] and step["value"] == 1.05
@@ -1331,7 +1345,7 @@ def test_a_candidate_refit_stalled_near_continuity_counts_as_converged(small_fit
     import scipy.sparse as sp
 
     from identify.diagnosis.candidates import ROUND_GAIN, candidate_problem
-    from identify.diagnosis.rounds import _tasks
+    from identify.diagnosis.tasks import candidate_tasks
     from identify.fitting.convergence import GIVE_UP_FEAS, STALL_FEAS, STALLED
     from identify.fitting.problem import Problem
 
@@ -1339,7 +1353,7 @@ def test_a_candidate_refit_stalled_near_continuity_counts_as_converged(small_fit
     values = {**identify.parameter_set("FOTAS"), **prob.values, **small_fit.values}
     current = dict(values=values, free=tuple(prob.theta.names), law="exponential", w=w, ev_M=np.array(prob.ev_M),
                    n_theta=prob.n_theta, chi2=1.0, n_eff=prob.n_effective())
-    (_, task), _ = _tasks(("drift",), current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [])
+    (_, task), _ = candidate_tasks(("drift",), current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [])
     cand = candidate_problem(task, tuple(prob.theta.names) + ("drift_rate",))
     assert (cand.stall_feas, cand.stall_tol) == (GIVE_UP_FEAS, ROUND_GAIN)
     assert (prob.stall_feas, prob.stall_tol) != (cand.stall_feas, cand.stall_tol)
@@ -1373,14 +1387,14 @@ def test_refits_go_to_the_workers_longest_first():
     law's fresh solve go first, the one-start refits after them in library order."""
     from types import SimpleNamespace
 
-    from identify.diagnosis.rounds import _expected_cost
+    from identify.diagnosis.tasks import expected_cost
 
     def task(effect, starts=1, staged=False):
         return SimpleNamespace(effect=effect, starts=[{}] * starts, staged=staged)
 
     tasks = [task(None), task("aging_logistic", staged=True), task("damping"), task("topography", starts=8),
              task("drift"), task("rejuvenation", starts=0)]
-    order = [t.effect for t in sorted(tasks, key=_expected_cost, reverse=True)]
+    order = [t.effect for t in sorted(tasks, key=expected_cost, reverse=True)]
     assert order == ["topography", "aging_logistic", None, "damping", "drift", "rejuvenation"]
 
 
@@ -1394,14 +1408,14 @@ def test_a_refit_that_ends_worse_than_the_current_model_tries_the_start_it_passe
     than the current model, the other start is solved too and the better end kept; ending
     better, it is not."""
     import identify.diagnosis.candidates as cand
-    from identify.diagnosis.rounds import _tasks
+    from identify.diagnosis.tasks import candidate_tasks
 
     prob, w = small_fit.problem, small_fit.w
     r = prob.residuals(w)
     current = dict(values={**identify.parameter_set("FOTAS"), **prob.values, **small_fit.values},
                    free=tuple(prob.theta.names), law=prob.law.name, w=w, ev_M=np.array(prob.ev_M),
                    n_theta=prob.n_theta, chi2=float(r @ r) + prob.chi2_constant(), n_eff=prob.n_effective())
-    tasks, _ = _tasks(["aging_logarithmic"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [])
+    tasks, _ = candidate_tasks(["aging_logarithmic"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [])
     task = dataclasses.replace(next(t for t in tasks if t.effect), folds=[], magnitude=None)
     half_null = 0.5 * (task.null_chi2 - prob.chi2_constant())
     solved = []
@@ -1423,7 +1437,7 @@ def test_a_refit_that_ends_worse_than_the_current_model_tries_the_start_it_passe
 def test_a_candidate_that_fit_better_at_its_magnitude_is_started_there_next_round(small_fit):
     """The two-effect set: the step size's refit stayed near its null (1 ± 0.013) while
     held at 1.05 it fit better; the next round retries it from 1.05 as well."""
-    from identify.diagnosis.rounds import _tasks
+    from identify.diagnosis.tasks import candidate_tasks
 
     prob, w = small_fit.problem, small_fit.w
     r = prob.residuals(w)
@@ -1431,14 +1445,14 @@ def test_a_candidate_that_fit_better_at_its_magnitude_is_started_there_next_roun
                    w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta,
                    chi2=float(r @ r) + prob.chi2_constant(), n_eff=prob.n_effective())
     better = {"step_size": dict(parameter="step_scale", value=1.05, better=True)}
-    tasks, _ = _tasks(["step_size", "drift"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [],
+    tasks, _ = candidate_tasks(["step_size", "drift"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [],
                       at_magnitude=better)
     by = {t.effect: t for t in tasks if t.effect}
     assert {"step_scale": 1.05} in [{k: v for k, v in s.items() if k == "step_scale" and v != 1.0}
                                     for s in by["step_size"].starts]
     assert by["step_size"].starts[0] == {"step_scale": 1.0}  # the null still first
     assert all("step_scale" not in s for s in by["drift"].starts)
-    plain, _ = _tasks(["step_size"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [])
+    plain, _ = candidate_tasks(["step_size"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [])
     assert len(plain[1].starts) == len(by["step_size"].starts) - 1
 
 

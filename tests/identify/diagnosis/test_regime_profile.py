@@ -122,7 +122,7 @@ def _profile_held(monkeypatch, held, own=(), p=1e-13):
                     best=dict(values={"dc": 1e-6}))
 
     monkeypatch.setattr(rprof, "regime_profile", fake_profile)
-    monkeypatch.setattr(D, "_tasks", lambda ids, *a, **k: ([None, SimpleNamespace(effect=ids[0])], []))
+    monkeypatch.setattr(D, "candidate_tasks", lambda ids, *a, **k: ([None, SimpleNamespace(effect=ids[0])], []))
     screened = []
 
     def fake_own(law, free, values, runs, say=None, executor=None):

@@ -242,13 +242,13 @@ def test_a_run_left_out_that_the_model_agrees_with_changes_nothing(small_fit):
 
 
 def test_candidate_notes_say_what_each_does_to_the_left_out_runs():
-    from identify.diagnosis.rounds import _regime_left_note, _regime_notes
+    from identify.diagnosis.regime_notes import regime_left_note, regime_notes
 
     base = dict(regime=dict(mismatched=["a", "b"]))
     fixes = dict(effect="rejuvenation", ok=True, note="significant", regime=dict(mismatched=[]))
     keeps = dict(effect="drift", ok=True, note=None, regime=dict(mismatched=["a", "b"]))
     breaks = dict(effect="damping", ok=True, note="x", regime=dict(mismatched=["a", "c"]))
-    _regime_notes([fixes, keeps, breaks], base)
+    regime_notes([fixes, keeps, breaks], base)
     assert fixes["regime_fixed"] == ["a", "b"] and fixes["note"].startswith("significant; under it 2 of the 2")
     assert keeps["regime_fixed"] == [] and keeps["note"].startswith("it leaves the 2 run(s)")
     assert breaks["regime_fixed"] == ["b"] and breaks["regime_broken"] == ["c"]
@@ -261,12 +261,12 @@ def test_candidate_notes_say_what_each_does_to_the_left_out_runs():
             return "2 of 2"
 
     rounds = [[dict(effect=None), fixes, keeps, breaks]]
-    note = _regime_left_note(Check(), rounds, [])
+    note = regime_left_note(Check(), rounds, [])
     assert "under rejuvenation, at its refitted values, they do not stick-slip" in note
     # a candidate already named is not offered as the one that "could not be named"
-    assert "under" not in _regime_left_note(Check(), rounds, ["rejuvenation"])
+    assert "under" not in regime_left_note(Check(), rounds, ["rejuvenation"])
     # the last round with candidates counts, not the final model's round alone
-    assert "under rejuvenation" in _regime_left_note(Check(), rounds + [[dict(effect=None)]], [])
+    assert "under rejuvenation" in regime_left_note(Check(), rounds + [[dict(effect=None)]], [])
 
 
 def test_the_regime_screen_says_which_candidate_makes_runs_like_the_datas():
@@ -467,25 +467,25 @@ def test_a_candidate_held_at_its_magnitude_that_makes_the_left_out_runs_is_said_
     where the final model parts from them (stand-in numbers near the rejuvenation set's).
     Said with its joint Δχ², not named from there: the magnitude is the library's (a
     profile decides, identify.diagnosis.regime_profile)."""
-    from identify.diagnosis.rounds import _held_evidence, _held_note
+    from identify.diagnosis.regime_notes import held_evidence, held_note
     from identify.fitting.regime_check import RegimeCheck
 
     check = RegimeCheck(runs=[dict(name=n, mismatch=n in "abc") for n in "abcdef"], chi2=58.2, df=6, p_value=1e-10)
-    held = _held_evidence(_held_round(), [], check)
+    held = held_evidence(_held_round(), [], check)
     assert [c["effect"] for c in held] == ["rejuvenation", "drift"]  # (damping: not settled, no reading)
     h = held[0]["held_regime"]
     assert h["fits"] and h["reproduces"] and h["final_mismatched"] == 3
     assert h["joint_delta_chi2"] == pytest.approx(0.12 - 58.2) and h["p_value"] < 1e-12
     assert not held[1]["held_regime"]["fits"] and held[1]["held_regime"]["joint_delta_chi2"] > 0
-    note = _held_note(held, 6)
+    note = held_note(held, 6)
     assert "rejuvenation at dc = 1000 nm fits them as well (Δnll +0.06" in note and "Not named" in note
     assert "drift" not in note
     # off continuity (the fitted runs' χ² there is not the model's), or an effect named already: no evidence
-    assert not _held_evidence(_held_round(continuity=0.05), [], check)[0]["held_regime"]["fits"]
-    assert [c["effect"] for c in _held_evidence(_held_round(), ["rejuvenation"], check)] == ["drift"]
-    assert _held_note(_held_evidence(_held_round(reproduces=False, chi2=30.0), [], check), 6) is None
-    assert _held_evidence(_held_round(), [], None) == []
+    assert not held_evidence(_held_round(continuity=0.05), [], check)[0]["held_regime"]["fits"]
+    assert [c["effect"] for c in held_evidence(_held_round(), ["rejuvenation"], check)] == ["drift"]
+    assert held_note(held_evidence(_held_round(reproduces=False, chi2=30.0), [], check), 6) is None
+    assert held_evidence(_held_round(), [], None) == []
     # against the current model's χ² at the values the check read, where given (the round
     # re-judges Δnll against its own re-solve, which may end above the current model)
-    h = _held_evidence(_held_round(dnll=-4.64), [], check, 2744.97)[0]["held_regime"]
+    h = held_evidence(_held_round(dnll=-4.64), [], check, 2744.97)[0]["held_regime"]
     assert h["delta_nll"] == pytest.approx(-0.12) and h["joint_delta_chi2"] == pytest.approx(-0.24 - 58.2)
