@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 from scipy import stats
@@ -55,6 +56,8 @@ class Misfit:
     statistic: float
     detail: str
     extra: dict = field(default_factory=dict)
+    # the largest misfit a feature is given: a p-value below double precision's reach says only "more"
+    cap_sigma: ClassVar[float] = MAX_SIGMA
 
     def to_json(self) -> dict:
         return dict(feature=self.feature, misfit_sigma=self.misfit_sigma, p_value=self.p_value,

@@ -16,6 +16,9 @@ import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
+from identify.model.errors import ParameterError
+from identify.model.plausible import PARAMETER_RANGES
+
 __all__ = [
     "ParamSpec",
     "SPECS",
@@ -30,10 +33,6 @@ __all__ = [
     "voltage_for_normal_load",
     "ParameterError",
 ]
-
-
-class ParameterError(ValueError):
-    """A parameter value or name breaks a rule; the message names both."""
 
 
 @dataclass(frozen=True)
@@ -84,8 +83,6 @@ class ParamSpec:
         if not math.isfinite(v):
             raise ParameterError(f"{where}{self.name} = {v}: must be a finite number")
         if v < self.lower or v > self.upper:
-            from identify.model.plausible import PARAMETER_RANGES
-
             r = PARAMETER_RANGES.get(self.name)
             hint = r.hint(v) if r is not None else ""
             raise ParameterError(

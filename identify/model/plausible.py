@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import math
 
+from identify.model.errors import ParameterError
+
 __all__ = ["PARAMETER_RANGES", "PLATFORM_RANGES", "PlatformRange", "check_parameters", "parameter_problem",
            "platform_problem"]
 
@@ -121,8 +123,6 @@ def parameter_problem(name: str, value: float) -> str | None:
 def check_parameters(values, where: str = "") -> None:
     """Raise ``ParameterError`` naming every implausible value of ``values`` ({name: SI
     value}); ``where`` says where they came from ('fixed ', 'start ')."""
-    from identify.model.params import ParameterError
-
     problems = [p for n, v in dict(values).items() if (p := parameter_problem(n, float(v))) is not None]
     if problems:
         raise ParameterError(where + ("; ".join(problems)))

@@ -59,12 +59,11 @@ def plot_misfit_by_feature(result, ax=None):
     """Misfit of every feature (σ), baseline and final model."""
     from scipy import stats
 
-    from identify.diagnosis.where import MAX_SIGMA
-
     plt = pyplot()
     if ax is None:
         _, ax = plt.subplots(figsize=(7.5, 4.0), constrained_layout=True)
     names = [m.feature for m in result.where]
+    cap = min((getattr(m, "cap_sigma", math.inf) for m in result.where), default=math.inf)
     before = np.array([_finite(m.misfit_sigma) for m in result.where])
     after_map = {m.feature: _finite(m.misfit_sigma) for m in result.where_final}
     after = np.array([after_map.get(n, math.nan) for n in names])
@@ -87,7 +86,7 @@ def plot_misfit_by_feature(result, ax=None):
                 ax.text(0.01 * top, yi + dy, "not tested", va="center", ha="left", fontsize=7, color="0.3",
                         style="italic")
             else:  # the value: a bar of zero length is a zero, not a gap in the figure
-                ax.text(v + 0.01 * top, yi + dy, f"≥ {MAX_SIGMA:g}" if v >= MAX_SIGMA else f"{v:.1f}",
+                ax.text(v + 0.01 * top, yi + dy, f"≥ {cap:g}" if v >= cap else f"{v:.1f}",
                         va="center", ha="left", fontsize=7, zorder=4, bbox=_BOX)
     ax.set_xlim(0, top * 1.12)
     ax.set_yticks(y, [_words(s) for s in names])

@@ -21,7 +21,6 @@ from dataclasses import replace
 import numpy as np
 
 from identify.plots.base import pyplot
-from identify.traces.reduced import _param_bounds
 
 __all__ = ["ZOOM_SLIPS", "plot_events", "plot_reduced_fit", "plot_reduced_rates"]
 
@@ -243,9 +242,7 @@ def _law_label(fit, name: str, f, d_aic: dict) -> str:
     if loose:  # why its band is wide
         lab += f"\n  {', '.join(loose)}: error > 100 %"
     for p in f.at_bounds:
-        lo, hi, _ = _param_bounds(p)
-        v = f.parameters[p]
-        side = "lower" if abs(v - lo) <= abs(v - hi) else "upper"
+        v, side = f.parameters[p], f.bound_side(p)
         val = _time_text(v) if p in ("tau", "t_c") else f"{v:.3g}"
         lab += f"\n  {p} stuck at its {side} bound ({val})"
         if name == "logarithmic" and p == "t_c" and side == "lower":

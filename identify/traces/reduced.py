@@ -300,6 +300,15 @@ class LawCurveFit:
     message: str = ""
     at_bounds: list = field(default_factory=list)
 
+    def bound_side(self, name: str) -> str | None:
+        """'lower' or 'upper': the bound parameter ``name`` sits at (None when it is not
+        at one)."""
+        if name not in self.at_bounds:
+            return None
+        lo, hi, _ = _param_bounds(name)
+        v = self.parameters[name]
+        return "lower" if abs(v - lo) <= abs(v - hi) else "upper"
+
     def predict(self, t_rest) -> np.ndarray:
         """μs at rest times ``t_rest`` (s)."""
         law = get_law(self.law)
