@@ -274,7 +274,7 @@ def _parse_bounds(items) -> dict:
 
 
 def _fit_options(args):
-    from identify.fitting.driver import DEFAULT_FREE, FitOptions
+    from identify.fitting.options import DEFAULT_FREE, FitOptions
 
     free = tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else DEFAULT_FREE
     stick = _stick_mode(args)  # (first: a speed given there joins --fix)

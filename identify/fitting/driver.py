@@ -14,251 +14,28 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
 from identify import interrupts
 from identify.fitting import best_so_far
-from identify.fitting.arcs import ARC_ABSTOL, ARC_RELTOL
-from identify.fitting.missed import missed_slips
+from identify.fitting.options import FitError, FitOptions
 from identify.fitting.problem import Problem
-from identify.fitting.result import SUSPECT_REDCHI
 from identify.fitting.rundata import RunData, make_run_data
-from identify.fitting.sequence import ambiguous_triggers, batch_triggers, excess_chi2, misfit_triggers, with_triggers
+from identify.fitting.sequence_decision import decide_sequence
+from identify.fitting.start_values import AUTO_SEED, spread_starts, start_values
+from identify.fitting.suspect import SAME_SOLUTION_TOL, at_bound, flag_rivals, improbable, suspect_reason
 from identify.model.laws import get_law
-from identify.model.params import parameter_set, spec
-from identify.model.plausible import check_parameters
+from identify.model.params import parameter_set
 from identify.model.symbolic import Model
 from identify.progress import Stage, reporter
 
 __all__ = ["FitOptions", "fit", "FitError", "RunData", "prepare_runs", "decide_sequence"]
 
+
+
 log = logging.getLogger(__name__)
-
-DEFAULT_FREE = ("mu_max", "mu_min", "tau", "A")
-
-
-class FitError(ValueError):
-    """Nothing could be fitted (every run was left out, or the solver failed).
-
-    ``excluded`` lists (run name, why) for runs that were left out; ``regime_runs`` those
-    of them left out for their regime (:class:`identify.fitting.regime_check.RegimeRun`), and
-    ``values`` the parameter values their regime was judged at (the diagnosis screens
-    its candidates on them, :mod:`identify.diagnosis.regime_screen`); ``used`` the runs that could
-    be used, when they were too few to fix the free parameters, and ``counts`` then their
-    (observations, free dimensions)."""
-
-    def __init__(self, message: str, excluded=(), regime_runs=(), values=None, used=(), counts=None):
-        super().__init__(message)
-        self.excluded = list(excluded)
-        self.regime_runs = list(regime_runs)
-        self.values = dict(values or {})
-        self.used = list(used)
-        self.counts = counts
-
-
-@dataclass(frozen=True)
-class FitOptions:
-    """How to fit.
-
-    Parameters
-    ----------
-    law : str
-        Aging law (``exponential``, ``logarithmic``, ``logistic``).
-    free : tuple of str
-        Parameters estimated (any model parameter: friction, platform or effect).
-    fixed : dict
-        Values for parameters that are not free (default: the coating's preset).
-    bounds : dict
-        name -> (lower, upper) for free parameters (default: the parameter table's).
-    start : dict
-        Start values for free parameters (default: the reduced analysis, else the preset).
-    free_offset : bool
-        Estimate a per-run elongation zero offset.
-    use_creep_runs : bool
-        Use runs without resolvable slips as steady-sliding observations when the model
-        at the start parameters creeps there.
-    max_arc_steps : int
-        Largest number of puller steps one slip arc may span.
-    arc_reltol, arc_abstol : float
-        Tolerances of the arcs (scaled states); why the defaults: ``identify.fitting.arcs.ARC_RELTOL``.
-    arc_jacobian : {"forward", "central", "exact"}
-        The arcs' derivatives while the solver iterates: finite differences (``forward``,
-        default: one integration per input instead of two; ``central``), or ``exact``:
-        IDAS sensitivities through the stop time (:mod:`identify.fitting.exact_arcs`), 30-40×
-        the cost per arc and not shared among arcs. The covariance always uses central
-        differences.
-    share_arc_jacobian : bool
-        Let slips whose inputs nearly agree share one slip's forward differences
-        (``identify.fitting.arcs.SHARE_TOL``; default True): a run's slips repeat nearly one
-        cycle, and most of an iteration's integrations went to derivatives known already.
-    solver : {"gauss-newton", "ipopt"}
-        ``gauss-newton`` (default): constrained Gauss–Newton SQP with an ℓ1-merit line
-        search (Bock's method for multiple shooting). ``ipopt``: Ipopt with the same
-        Gauss–Newton Hessian and oracles — measured to stall on these problems
-        (README), kept for comparison.
-    staged_start : bool
-        Start from the trigger and slip-length stages of :mod:`identify.fitting.start`.
-    max_iter, tol : iteration limit; tolerance on the relative step and feasibility.
-    threads : int
-        Threads for the arc evaluations.
-    multistart : int
-        Extra starts drawn around the first (log-normal, 30 %) with ``seed``.
-    auto_starts : int
-        When the solution still looks wrong after the start before or after staging was
-        tried (not converged, reduced χ² above 2, a parameter at a bound), this many more
-        starts spread over each parameter's plausible range (a decade either side of the
-        suspect solution and of the coating's preset for log-scaled parameters, ±40 % for
-        the others; τ also over the data's rest times), a Latin hypercube seeded by
-        ``seed``; the best solution is kept and the report's start line says so. 0 turns
-        it off.
-    check_platform : bool
-        Refuse fixed and start values outside what a contact on the platform can
-        plausibly have (:data:`identify.model.plausible.PARAMETER_RANGES`: ``tau = 67.4``
-        is milliseconds typed for seconds), naming the likely unit slip; False takes them.
-    sequence_trials : int
-        Trials of the last mode-sequence pass (:func:`identify.fitting.sequence.misfit_triggers`:
-        local changes where the model's triggers misfit, each a short re-solve of the
-        changed run alone with the parameters held; a kept change is solved jointly);
-        0 turns it off. Data whose triggers fit pay none.
-    scale_covariance : bool
-        Scale the model-based covariance by the reduced χ² (lmfit's default).
-    free_phase : bool
-        Estimate per run the phase of the step interval at which its slips recur,
-        bounded to [0, 1] (the interval constraint for what the run's slips share, with a
-        weak uniform prior), instead of taking the middle. A stick-slip cycle locks its
-        triggers at one phase (measured 0.71 on a k = 20.3 N/m, 30 µN, 100 Hz run, the
-        same from any start), which the middle pulls on: on three calibration repeats the
-        bounded phases removed τ's bias (z −1.5…−2.1 → 0.2…0.4) but made its standard
-        error 3–5× larger and the fit 5–10× slower, ending in a failed line search. Off
-        by default.
-    arc_start : {"aged", "mid"}
-        The contact state a slip arc starts from. ``aged`` (default): the previous
-        slip's end state aged over the rest, a shooting variable per slip (its position
-        in the trigger interval) tied to it by a constraint, as in the simulator; a
-        run's first slip from an estimated initial contact (uniform prior over its
-        interval: the contact before the run is not observed).
-        ``mid``: every arc starts from the state whose capacity sits in the middle of its
-        trigger interval (a valid trigger for any parameters, the model off by up to
-        half an interval of capacity, ~0.5 nm of slip length: invisible at 90 nm, but
-        ~10 σ on noiseless traces).
-    covariance : {"robust", "cluster", "model"}
-        ``robust`` (default): the slips of a run share a phase error, as far as the
-        spread of their trigger positions says (an exchangeable correlation per run, the
-        expected meat of a sandwich); ``cluster``: cluster-robust by run from the
-        realised residuals (few runs make it run small); ``model``: every residual
-        independent.
-    trigger : {"uniform", "interval"}
-        How the data's trigger step enters. ``uniform`` (default): a residual
-        √12·(s − φ) per slip, s the capacity's position in its step interval, φ the
-        run's phase — a Gaussian stand-in (same mean and variance) for the flat
-        likelihood of a position known only to lie in the interval; smooth, it guides
-        the mode-sequence repairs and gives the triggers their share of the covariance.
-        It pulls every s towards φ, which biases the estimates where the frames leave
-        nothing to pull against: on noiseless data by ~2e-3 relative. ``interval``: the
-        flat likelihood, 0 ≤ s ≤ 1 as bounds on the shooting variables and no trigger
-        residual — consistent as the noise vanishes; for noiseless or nearly noiseless
-        data. The fit is done with the uniform encoding (start, solves, mode sequence)
-        and then solved once more from its solution with the interval; a re-solve that
-        does not converge is not kept (the report's start line says so). Two caveats:
-        the bounds are the plain interval [F_s(e − Δx), F_s(e)], without the aging
-        during the last step that the uniform residual subtracts from its lower end
-        (:meth:`identify.fitting.problem.Problem.position`), so starts a step early are admitted;
-        and the covariance holds the frames' information only. On noisy data that is
-        little: the triggers are where μmax and τ show, and bounds that are not active
-        add nothing to a local covariance (measured on two 90 nm runs: the re-solve
-        `Stalled`, standard errors of 1000 % and more). Needs ``arc_start="aged"``.
-        Measured on two noiseless runs simulated at tolerance 1e-9, from 10 % off:
-        uniform −2.3e-3 / −4.2e-4 / −3.8e-3 / +1.5e-3 (μmax, μmin, τ, A), interval within
-        4e-5 of the truth (6e-5 from 5 % off).
-    """
-
-    law: str = "exponential"
-    free: tuple = DEFAULT_FREE
-    fixed: Mapping[str, float] = field(default_factory=dict)
-    bounds: Mapping[str, tuple] = field(default_factory=dict)
-    start: Mapping[str, float] = field(default_factory=dict)
-    free_offset: bool = False
-    use_creep_runs: bool = True
-    max_arc_steps: int = 64
-    arc_reltol: float = ARC_RELTOL
-    arc_abstol: float = ARC_ABSTOL
-    arc_jacobian: str = "forward"
-    share_arc_jacobian: bool = True
-    solver: str = "gauss-newton"
-    staged_start: bool = True
-    max_iter: int = 100
-    tol: float = 1e-8
-    threads: int = 2
-    multistart: int = 0
-    sequence_trials: int = 64
-    seed: int | None = None
-    scale_covariance: bool = True
-    covariance: str = "robust"
-    free_phase: bool = False
-    arc_start: str = "aged"
-    trigger: str = "uniform"
-    stick_speed: str = "check"
-    auto_starts: int = 4
-    check_platform: bool = True
-
-    def __post_init__(self):
-        get_law(self.law)
-        free = tuple(self.free)
-        object.__setattr__(self, "free", free)
-        if not free:
-            raise ValueError("free: at least one parameter must be free")
-        from identify.fitting.problem import MEASUREMENT
-
-        model = Model(get_law(self.law))
-        allowed = set(model.parameter_names) | set(MEASUREMENT)
-        for name in free:
-            if name not in allowed:
-                raise ValueError(
-                    f"free: {name!r} is not a parameter of the {self.law} model; "
-                    f"choose from {', '.join(model.parameter_names + MEASUREMENT)}"
-                )
-        if len(set(free)) != len(free):
-            raise ValueError(f"free: {free} lists a parameter twice")
-        for name, value in dict(self.fixed).items():
-            spec(name).check(value, "fixed ")
-            if name in free:
-                raise ValueError(f"{name} is both free and fixed")
-        for name, value in dict(self.start).items():
-            spec(name).check(value, "start ")
-        if self.check_platform:
-            check_parameters(self.fixed, "fixed ")
-            check_parameters(self.start, "start ")
-        for name, (lo, hi) in dict(self.bounds).items():
-            if name not in free:
-                raise ValueError(f"bounds: {name} is not free")
-            if not lo < hi:
-                raise ValueError(f"bounds: {name} needs lower < upper, got ({lo}, {hi})")
-        for name in ("max_arc_steps", "max_iter", "threads"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} = {getattr(self, name)!r}: must be a positive integer")
-        if self.multistart < 0:
-            raise ValueError(f"multistart = {self.multistart!r}: must be >= 0")
-        if self.auto_starts < 0:
-            raise ValueError(f"auto_starts = {self.auto_starts!r}: must be >= 0")
-        if self.sequence_trials < 0:
-            raise ValueError(f"sequence_trials = {self.sequence_trials!r}: must be >= 0")
-        if self.arc_jacobian not in ("forward", "central", "exact"):
-            raise ValueError(f"arc_jacobian = {self.arc_jacobian!r}: choose 'forward', 'central' or 'exact'")
-        if self.arc_start not in ("aged", "mid"):
-            raise ValueError(f"arc_start = {self.arc_start!r}: choose 'aged' or 'mid'")
-        if self.trigger not in ("uniform", "interval"):
-            raise ValueError(f"trigger = {self.trigger!r}: choose 'uniform' or 'interval'")
-        if self.trigger == "interval" and self.arc_start != "aged":
-            raise ValueError("trigger = 'interval' needs arc_start = 'aged': the interval bounds the arcs' "
-                             "start positions, which arc_start = 'mid' does not have")
-        if self.covariance not in ("robust", "cluster", "model"):
-            raise ValueError(f"covariance = {self.covariance!r}: choose 'robust', 'cluster' or 'model'")
-        if self.solver not in ("gauss-newton", "ipopt"):
-            raise ValueError(f"solver = {self.solver!r}: choose 'gauss-newton' or 'ipopt'")
-        if self.stick_speed not in ("check", "auto", "off"):
-            raise ValueError(f"stick_speed = {self.stick_speed!r}: choose 'check', 'auto' or 'off'")
 
 
 # ----------------------------------------------------------------------------- data
@@ -361,85 +138,6 @@ def prepare_runs(items, *, coating: str | None = None, noise_m: float | None = N
     return runs, excluded, coating
 
 
-REDUCED_Z = 1.96  # a reduced-analysis value starts the fit only if its 95 % interval excludes 0
-# ... and μmax alone, when the others are undetermined, if its standard error is below
-# this: the static friction has saturated within the rests recorded
-MU_MAX_SATURATED_SE = 0.02
-
-
-def _start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict, str]:
-    """Start from the reduced analysis where it can say something (DESIGN.md §2): its
-    μmax, μmin and τ, when the Eq. 9 fit determines all three, else the preset; values
-    the caller gives override either. Returns the start and where each value came from."""
-    start = {n: preset[n] for n in opts.free}
-    origin = {n: "preset" for n in start}
-    ev_runs = [r.events for r in runs if r.kind == "events"]
-    try:
-        from identify.traces.reduced import reduced_fit
-
-        red = [ev.reduced for ev in ev_runs if getattr(ev, "reduced", None) is not None]
-        if len(red) >= 4 and law.name in ("exponential", "logistic"):
-            fitted = reduced_fit(red, laws=(law.name,)).fits[law.name]
-            names = [n for n in ("mu_max", "mu_min", "tau") if n in start and n in fitted.parameters]
-            # measured on the two-condition plan's Monte Carlo: the Eq. 9 fit over two rest
-            # times put μmin at 0.004-0.07 ± 0.2 in 4 of 20 repeats, and those fits ended
-            # far from the truth. The three values are fitted together (τ and μmax moved
-            # with that μmin), so one the fit cannot tell from zero discredits all three.
-            vague = [n for n in names if not (np.isfinite(fitted.parameters[n])
-                                              and np.isfinite(fitted.stderr.get(n, np.nan))
-                                              and abs(fitted.parameters[n]) > REDUCED_Z * fitted.stderr[n])]
-            if fitted.converged and names and not vague:
-                for n in names:
-                    start[n] = float(fitted.parameters[n])
-                    origin[n] = "reduced analysis"
-            elif fitted.converged and vague:
-                log.info("reduced-analysis start not used: %s undetermined", ", ".join(vague))
-                origin.update({n: f"preset ({', '.join(vague)} undetermined by the reduced analysis)"
-                               for n in names})
-                # μmax alone, where the saturated static friction pins it and τ alone is
-                # undetermined: rests long against τ give μs ≈ μmax whatever τ is (the
-                # issue's case: the reduced analysis put μs at 0.738 in every run, the
-                # start took the preset's 0.796 because τ alone was undetermined). Not when
-                # μmin is undetermined too: over two rest times μmax then moves with it
-                # (the measured failure above: μmax 0.83 ± 0.0009 with μmin 0.004 ± 0.24)
-                se = fitted.stderr.get("mu_max", np.nan)
-                if vague == ["tau"] and "mu_max" in names and np.isfinite(se) and se < MU_MAX_SATURATED_SE:
-                    start["mu_max"] = float(fitted.parameters["mu_max"])
-                    origin["mu_max"] = f"reduced analysis (saturated μs; {', '.join(vague)} undetermined)"
-    except Exception as err:  # the start is a convenience, never a reason to fail
-        log.info("reduced-analysis start unavailable: %s", err)
-    for n, v in opts.start.items():
-        if n in start:
-            start[n] = float(v)
-            origin[n] = "given"
-    if "mu_min" in start and "mu_max" in start and start["mu_min"] >= start["mu_max"]:
-        start["mu_min"] = 0.9 * start["mu_max"]
-        origin["mu_min"] = "0.9 mu_max (the start had mu_min >= mu_max)"
-    groups: dict[str, list] = {}
-    for n, o in origin.items():
-        groups.setdefault(o, []).append(n)
-    if len(groups) == 1:
-        return start, next(iter(groups))
-    return start, "; ".join(f"{o} for {', '.join(ns)}" for o, ns in groups.items())
-
-
-AUTO_SEED = 20261127  # the spread starts' seed when the options give none (a fit repeats itself)
-# ½χ²: a spread start's solution replaces the fit's only if lower by more (the tolerance
-# of the loose solves that decide between starts, LOOSE_STAT_TOL)
-SAME_SOLUTION_TOL = 0.25
-# (SUSPECT_REDCHI: a solution's reduced χ² above which the fit tries another start, and
-# its result is reported as not explained by the noise)
-# After inserted slips, a fresh solve that did not converge is still taken as it is when
-# its χ² is within the noise (below this upper quantile of χ² with the fit's dof): the
-# solver stalls at kinked arcs (a slow slip grazing the stop speed) as well as in another
-# basin. Measured: on the 8-run withheld-conditions set the fresh solve ended
-# Line_Search_Failed at reduced χ² 0.998 and the warm solve ended at the same ½χ²
-# (239.387) 28 s later; the calibration's five fresh solves that did not converge sat at
-# 0.985 (kept, 0.001 below the warm one) and at 1.28-1.55 with ~3500 degrees of freedom
-# (warm solved, kept in seed 30 by 881 of ½χ²), where this quantile (p = 1e-3) lies near 1.07.
-NOISE_P = 1e-3
-
-
 def _interval_solve(prob, best: dict, opts, say):
     """``prob`` again with the triggers as intervals (``opts.trigger = "interval"``),
     solved from ``best``, the uniform encoding's solution: the same variables, every
@@ -468,344 +166,6 @@ def _interval_solve(prob, best: dict, opts, say):
         status = sol["status"]
     say(f"warning: the interval re-solve ended {status}; the uniform encoding's solution is kept")
     return prob, best, f" -> interval re-solve {status}, not kept (the uniform encoding's solution)"
-
-
-def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_start: dict | None = None):
-    """The mode sequence decided against the model from a solution ``best`` of ``prob``:
-    triggers the model places a step or two off moved (the frames taken while the block
-    moved left out), missed slips inserted, runs with many triggers a step off by their
-    residuals given one trial each, then the detector's ambiguous triggers and whatever
-    still misfits tried (:mod:`identify.fitting.sequence`), each change re-solved.
-    Returns (problem, solution) with the counts in ``triggers_moved``, ``slips_inserted``
-    and ``slips_removed``, and in ``restarts`` each solve after inserted slips
-    (:func:`_after_insertion`). ``fresh_start`` (parameter values): after inserting slips,
-    solve afresh from the staged start of those values (:func:`fit` passes its start).
-    The diagnosis calls it again for a model with a named effect, whose sequence the
-    baseline had bent to absorb the effect. Should the decided sequence end worse than
-    ``best`` (:data:`SEQUENCE_SLACK`), ``prob`` and ``best`` are returned instead, with
-    what was not kept in ``sequence_not_kept``."""
-    # the mode sequence: move triggers the model places a step or two off, and leave
-    # out the frames taken while the block moved; re-solve until nothing moves
-    # (a slip the detection missed is inserted where the model predicts it and the
-    # frames show it, once no trigger moves any more; in the first round, together
-    # with the moves, when they do not touch the plateaus it splits: _with_insertions)
-    refined = inserted = 0
-    restarts: list[dict] = []  # the solves after inserted slips (_after_insertion)
-    prob0, best0 = prob, best
-    for round_ in range(6):
-        changes, n_moved = prob.refine_triggers(best["w"])
-        n_added = 0
-        if n_moved == 0:
-            changes, n_added = missed_slips(prob, best["w"])
-        elif round_ == 0:
-            changes, n_moved, n_added = _with_insertions(prob, changes, n_moved, *missed_slips(prob, best["w"]))
-        if round_ > 0 and n_moved + n_added == 0:
-            break
-        refined += n_moved
-        inserted += n_added
-        say(f"mode sequence: {n_moved} slip trigger(s) moved, {n_added} missed slip(s) inserted; re-solving")
-        prob, w_next = with_triggers(prob, best["w"], changes, model, values, opts, say)
-        if n_added and opts.staged_start and fresh_start is not None:
-            sol = _after_insertion(prob, w_next, fresh_start, int(n_added), opts, restarts)
-        else:
-            sol = prob.solve(w_next, loose=True)  # (the next round decides on it: LOOSE_STAT_TOL)
-        sol["iterations"] += best["iterations"]
-        sol["wall_s"] += best["wall_s"]
-        best = sol
-    # then the detector's ambiguous triggers, against the repaired sequence (tried before
-    # it, on merged slips, they moved correct triggers: calibration seeds 1 and 4)
-    # (its kept changes are solved at held parameters; the misfit pass solves them jointly)
-    # (first, the runs with many triggers a step off by their residuals, each in one trial)
-    prob, best, n_batch = batch_triggers(prob, best, model, values, opts, say)
-    prob, best, n_alt = ambiguous_triggers(prob, best, model, values, opts, say)
-    # last, whatever the local scores and the detector left where the model's triggers misfit
-    prob, best, n_seq = misfit_triggers(prob, best, model, values, opts, say, unsolved=n_alt + n_batch > 0)
-    if best.get("loose"):  # no pass re-solved it: the sequence is settled, solved fully now
-        say("the mode sequence settled: solving to the full tolerance")
-        best = _full_tolerance(prob, best)
-    moved, ins, rem = refined + n_batch + n_alt + n_seq["moved"], inserted + n_seq["inserted"], n_seq["removed"]
-    worse = worse_sequence(prob0, best0, prob, best)
-    if worse is not None:
-        say(f"the mode sequence as detected kept: the changes ({moved} trigger(s) moved, {ins} slip(s) inserted, "
-            f"{rem} removed) ended with excess χ² {worse['excess_after']:.6g} against {worse['excess_before']:.6g}")
-        spent = dict(iterations=best["iterations"], wall_s=best["wall_s"])  # (cumulative: every round's solves)
-        prob, best = prob0, (_full_tolerance(prob0, best0) if best0.get("loose") else dict(best0))
-        if best0.get("loose"):
-            spent = {k: spent[k] + best[k] - best0[k] for k in spent}
-        best.update(spent)
-        best["sequence_not_kept"] = dict(worse, triggers_moved=moved, slips_inserted=ins, slips_removed=rem)
-        moved = ins = rem = 0
-        restarts = []
-    best["triggers_moved"], best["slips_inserted"], best["slips_removed"] = moved, ins, rem
-    best["restarts"] = restarts
-    return prob, best
-
-
-SEQUENCE_SLACK = 2.0
-"""The mode-sequence changes a fit decides (:func:`decide_sequence`) are each meant to
-lower χ²; all of them together ending with an excess χ² (χ² − observations, comparable
-across sequences) more than this above the solution they started from are undone, that
-solution kept. Why: on data the model cannot follow, each round's trigger moves chase
-the misfit. Measured (rejuvenation withheld at dc = 0.3 µm, the exponential baseline, 7
-runs): the first solve ended at χ² 21 208, continuous to 1e-7 µm; 57 trigger moves and 5
-insertions later the fit ended `Line_Search_Failed` at χ² 56 498, 0.15 µm off
-continuity, ½χ² 3e5 from its Gauss–Newton solution (887 iterations, 557 s)."""
-
-
-SEQUENCE_FEAS_UM = 1e-3
-"""... and only when the solution it started from is continuous to this (1 nm, 1/90 of the
-camera noise) or at least as continuous as the end: a point off continuity can have a
-lower χ² than the model's own, which is no reason to go back to it."""
-
-
-def worse_sequence(prob0, best0, prob, best, slack: float = SEQUENCE_SLACK) -> dict | None:
-    """The excess χ² (and continuity, µm) before and after when the decided sequence's
-    solution is worse than the one it started from (by more than ``slack``, with
-    :data:`SEQUENCE_FEAS_UM`), or not finite; else None. The one rule for both places a
-    sequence is decided: a fit (:func:`decide_sequence`, :data:`SEQUENCE_SLACK`), and the
-    diagnosis deciding it again for a model with a named effect (slack 0: a change must
-    lower χ² to be adopted, since the named effect's scores were measured without it)."""
-    try:
-        r0, g0 = prob0.evaluate(best0["w"])
-        r1, g1 = prob.evaluate(best["w"])
-    except Exception:  # (either cannot be evaluated: no comparison, the sequence stands)
-        return None
-    e0, e1 = excess_chi2(prob0, r0), excess_chi2(prob, r1)
-    f0 = float(np.abs(g0).max()) if g0.size else 0.0
-    f1 = float(np.abs(g1).max()) if g1.size else 0.0
-    if not (np.isfinite(e0) and np.isfinite(f0)):
-        return None
-    if np.isfinite(e1) and np.isfinite(f1):  # (an end not finite is worse, whatever the start)
-        if e1 <= e0 + slack:
-            return None
-        if f0 > max(f1, SEQUENCE_FEAS_UM):
-            return None  # the start was further off continuity: its lower χ² is not the model's
-    return dict(excess_before=float(e0), excess_after=float(e1), continuity_before_um=f0, continuity_after_um=f1)
-
-
-def _full_tolerance(prob, best: dict) -> dict:
-    """A loose solution (``Problem.solve(loose=True)``) solved on to the full tolerances;
-    if that fails, the loose point stands, reported as not converged."""
-    failed = {k: v for k, v in best.items() if k != "loose"}
-    failed.update(success=False, status=f"{best.get('status')} (loose); the full-tolerance solve failed")
-    try:
-        sol = prob.solve(best["w"])
-    except Exception as err:
-        log.info("the full-tolerance solve after the mode sequence failed: %s", err)
-        return failed
-    spent = dict(iterations=best["iterations"] + sol["iterations"], wall_s=best["wall_s"] + sol["wall_s"])
-    return dict(sol, **spent) if np.isfinite(sol["f"]) else dict(failed, **spent)
-
-
-def _with_insertions(prob, moved: dict, n_moved: int, inserted: dict, n_inserted: int) -> tuple[dict, int, int]:
-    """The trigger moves ``moved`` ({run: steps}) with the slips of ``inserted`` (found
-    at the same solution, :func:`identify.fitting.missed.missed_slips`) added: (changes, number
-    moved, number inserted). A move that meets or crosses an inserted slip is not made
-    (the two disagree about one slip; the insertion has the frames' 3σ jump for it, the
-    move only a local score on plateaus the missed slip bent); the next round's scores,
-    on the repaired sequence, decide again whether it moves.
-
-    Why: an insertion is followed by a solve from a fresh start, which makes the solve
-    after the moves redundant. Measured on the 10-run speed benchmark (2026-11-25): the
-    first round had moved 3 triggers and re-solved (18 s), the second inserted 6 slips
-    and solved afresh (64 s). Now the first round moves 2 and inserts 7, one move left
-    to the next round; the seventh slip, found on plateaus a misplaced trigger bent, is
-    removed again by the misfit pass (identify.fitting.sequence), which ends with every trigger
-    fitting: 163 -> 135 s, the same profiler."""
-    if not n_inserted:
-        return moved, n_moved, 0
-    out, n_kept = dict(moved), n_moved
-    for ri, steps in inserted.items():
-        old = np.asarray(prob.runs[ri].trigger_steps, int)
-        added = np.setdiff1d(steps, old)
-        base = np.asarray(moved.get(ri, old), int).copy()
-        if len(base) == len(old):
-            lo, hi = np.minimum(old, base), np.maximum(old, base)
-            meets = ((added[None, :] >= lo[:, None]) & (added[None, :] <= hi[:, None])).any(axis=1) & (base != old)
-            if meets.any():
-                log.info("run %d: %d trigger move(s) meeting the missed slips inserted left to the next round",
-                         ri, int(meets.sum()))
-                n_kept -= int(meets.sum())
-                base[meets] = old[meets]
-        new = np.union1d(base, added).astype(int)
-        if len(new) != len(base) + len(added) or np.any(np.diff(base) <= 0):
-            log.info("missed slips in run %d left to the next round: the moves collide with them", ri)
-            return moved, n_moved, 0
-        out[ri] = new
-    return out, n_kept, int(n_inserted)
-
-
-def _after_insertion(prob, w_warm, fresh_start: dict, n_added: int, opts, restarts: list) -> dict:
-    """The solve after inserting missed slips: from a fresh staged start of ``fresh_start``
-    on the repaired sequence, and from the warm point ``w_warm`` (the solution before,
-    carried over) only when that looks wrong (:func:`_suspect`; a solve that did not
-    converge but fits within the noise is taken, :data:`NOISE_P`); the better is kept,
-    and the comparison appended to ``restarts``.
-
-    Why fresh first: a missed slip bends the solution before it (and the staged start
-    made from the merged plateaus) far off. On the 10-run speed benchmark the warm solve
-    ended in another basin, ½χ² 1238.74 against the fresh solve's 1237.28; over 14
-    calibration repeats with both solves (9 insertions) the two ended within 0.003 of
-    each other. Why the warm one when the fresh looks wrong: in the 50-repeat
-    calibration it was kept 3 times of 5, once by 881 of ½χ² (seed 30, the fresh solve
-    Stalled at reduced χ² 1.55). Solving both always cost a second solve of the whole
-    problem: ~100 s of the 10-run fit (docs/engineering-notes.md, Speed)."""
-    from identify.fitting.start import staged_start
-
-    try:
-        fresh, _ = staged_start(prob, fresh_start, seed=opts.seed or 0)
-        sol = prob.solve(prob.initial_w(fresh), loose=True)
-    except Exception as err:  # the warm solve decides
-        log.info("fresh start after inserting slips failed: %s", err)
-        sol = dict(w=w_warm, f=np.inf, status=f"failed: {err}", success=False, iterations=0, wall_s=0.0)
-    rec = dict(slips_inserted=n_added, fresh_half_chi2=float(sol["f"]),
-               fresh_suspect=_suspect(prob, sol, noise_p=NOISE_P),
-               fresh_status=str(sol.get("status")), fresh_s=float(sol["wall_s"]), warm_half_chi2=None, kept="fresh")
-    if rec["fresh_suspect"]:
-        warm = prob.solve(w_warm, loose=True)
-        rec["warm_half_chi2"] = float(warm["f"])
-        its, wall = sol["iterations"] + warm["iterations"], sol["wall_s"] + warm["wall_s"]
-        if np.isfinite(warm["f"]) and not warm["f"] >= sol["f"]:
-            sol, rec["kept"] = warm, "warm"
-        sol = dict(sol, iterations=its, wall_s=wall)
-    log.info("after inserting %d slip(s): fresh solve ½χ² %.6g%s", n_added, rec["fresh_half_chi2"],
-             f" ({rec['fresh_suspect']}; warm {rec['warm_half_chi2']:.6g}, {rec['kept']} kept)"
-             if rec["fresh_suspect"] else "")
-    restarts.append(rec)
-    return sol
-
-
-def _at_bound(prob, res) -> str:
-    """'' unless a free parameter of the solution ``res`` sits at a bound of the search
-    (then: which ones)."""
-    if not np.isfinite(res.get("f", np.inf)):
-        return ""
-    tm = prob.theta
-    th = np.asarray(res["w"][: prob.n_theta], float)
-    rng = np.maximum(tm.hi - tm.lo, 1.0)
-    at = [n for n, t, lo, hi, r in zip(tm.names, th, tm.lo, tm.hi, rng) if min(t - lo, hi - t) < 1e-6 * r]
-    return f"{', '.join(at)} at a bound" if at else ""
-
-
-def _spread_ranges(prob, w_ref: np.ndarray, preset: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The plausible range of each free parameter, scaled (lo, hi), inside the search
-    bounds: around the suspect solution ``w_ref`` (a decade either side for log-scaled
-    parameters, ±40 % for the others) and, so that a parameter collapsed onto a bound is
-    not searched only there, around the coating's ``preset`` as well; a time constant
-    (τ) also over the data's rests, a tenth of the shortest to three times the longest."""
-    tm, k = prob.theta, prob.n_theta
-    th0 = np.asarray(w_ref[:k], float)
-    half = np.where(tm.log, np.log(10.0), 0.4 * np.maximum(np.abs(th0), 1e-3))
-    lo, hi = th0 - half, th0 + half
-    if preset:
-        known = {n: preset[n] for n in tm.names if n in preset}
-        if len(known) == k:
-            thp = tm.to_scaled(known)
-            half_p = np.where(tm.log, np.log(10.0), 0.4 * np.maximum(np.abs(thp), 1e-3))
-            lo, hi = np.minimum(lo, thp - half_p), np.maximum(hi, thp + half_p)
-    rests = np.concatenate([np.diff(r.trigger_steps) / r.fp for r in prob.runs
-                            if r.trigger_steps is not None and len(r.trigger_steps) > 1] or [np.zeros(0)])
-    rests = rests[rests > 0]
-    if rests.size and "tau" in tm.names:
-        j = tm.names.index("tau")
-        if tm.log[j]:
-            lo[j] = min(lo[j], np.log(0.1 * rests.min() / tm.scale[j]))
-            hi[j] = max(hi[j], np.log(3.0 * rests.max() / tm.scale[j]))
-    return np.maximum(lo, tm.lo + 1e-9), np.minimum(hi, tm.hi - 1e-9)
-
-
-def _spread_starts(prob, w_ref: np.ndarray, n: int, rng, preset: dict | None = None) -> list:
-    """``n`` starts spread over the plausible range of every free parameter
-    (:func:`_spread_ranges`) as a Latin hypercube: each parameter's range cut into ``n``
-    strata, one start in each; the plateaus and triggers as in ``w_ref``, the arc starts
-    synced to each start's parameters."""
-    k = prob.n_theta
-    out = []
-    u = (rng.permuted(np.tile(np.arange(n), (k, 1)), axis=1).T + rng.random((n, k))) / n  # (n × k) in [0, 1)
-    lo, hi = _spread_ranges(prob, w_ref, preset)
-    for row in u:
-        w = np.array(w_ref, float)
-        w[:k] = lo + row * (hi - lo)
-        out.append(prob.sync_start_positions(w) if prob.E else w)
-    return out
-
-
-SPREAD_P = 0.01
-"""A converged solution whose χ² the noise would exceed less often than this gets the
-spread starts too: with thousands of frames a local minimum can sit at reduced χ² 1.05,
-several standard deviations of χ² above the truth's basin, and look converged."""
-
-
-RIVAL_DCHI2 = 3.84
-"""χ² within which another converged solution is as good as the best (the 95 % point of
-χ² with one degree of freedom): where it puts a parameter outside the best's interval,
-the interval describes one of several minima, not the data's whole answer."""
-
-
-def _flag_rivals(result, prob, best: dict, rivals: list) -> None:
-    """Flag each free parameter that a rival solution (a converged spread start of the same
-    problem, its χ² within :data:`RIVAL_DCHI2` of the best) puts outside the best's 95 %
-    interval, with the rival's value; the result's ``multistart`` says whether the best
-    point is unique."""
-    tm, k = prob.theta, prob.n_theta
-    found = {}
-    for r in rivals:
-        if r is best or 2 * (r["f"] - best["f"]) > RIVAL_DCHI2:
-            continue
-        vals = np.atleast_1d(tm.from_scaled(np.asarray(r["w"][:k], float)))
-        for n, v in zip(tm.names, vals):
-            p = result.parameters.get(n)
-            if p is None or p.ci95 is None or p.ci95[0] <= v <= p.ci95[1]:
-                continue
-            if n not in found or abs(v - p.value) > abs(found[n][0] - p.value):
-                found[n] = (float(v), 2 * (r["f"] - best["f"]))
-    result.multistart["unique"] = not found
-    for n, (v, d) in found.items():
-        p = result.parameters[n]
-        text = (f"not unique: another converged solution, chi-square {d:+.2f} from the best, puts it at {v:.4g}, "
-                "outside this interval (a profile, result.profile, maps the valley)")
-        p.flag = f"{p.flag}; {text}" if p.flag else text
-
-
-def _chi2_dof(prob, res) -> tuple[float, int]:
-    """A solve's frame-level χ² (½χ² doubled, the compressed plateaus' constant added) and
-    the fit's degrees of freedom."""
-    return 2 * res["f"] + prob.chi2_constant(), prob.dof()
-
-
-def _improbable(prob, res) -> str:
-    """Why a converged solution's χ² is unlikely under the noise the data claim ('' if
-    it is not): above the upper :data:`SPREAD_P` quantile of χ² with the fit's degrees of
-    freedom."""
-    from scipy import stats
-
-    if not np.isfinite(res["f"]) or prob.dof() <= 0:
-        return ""
-    chi2, dof = _chi2_dof(prob, res)
-    limit = float(stats.chi2.isf(SPREAD_P, dof))
-    return f"chi-square {chi2:.6g} above the noise's {100 * (1 - SPREAD_P):g}th percentile {limit:.6g}" \
-        if chi2 > limit else ""
-
-
-def _suspect(prob, res, noise_p: float | None = None) -> str:
-    """Why a solution looks wrong ('' if it does not): the solver did not converge, or
-    the frames' noise does not explain it (reduced χ² > SUSPECT_REDCHI). With
-    ``noise_p``, a solve that did not converge is not suspect when its χ² lies below the
-    upper ``noise_p`` quantile of χ² with the fit's degrees of freedom."""
-    if not np.isfinite(res["f"]):
-        return "no solution"
-    chi2, dof = _chi2_dof(prob, res)
-    redchi = chi2 / dof
-    if redchi > SUSPECT_REDCHI:
-        return (f"solver: {res.get('status')}, " if not res.get("success") else "") + f"reduced χ² {redchi:.3g}"
-    if not res.get("success"):
-        if noise_p is not None:
-            from scipy import stats
-
-            if chi2 <= stats.chi2.isf(noise_p, dof):
-                return ""
-        return f"solver: {res.get('status')}, reduced χ² {redchi:.3g}"
-    return ""
 
 
 def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
@@ -899,7 +259,7 @@ def _fit(data, *, coating, options, true_values, progress):
             excluded.append((rd.name, "no slip detected"))
             continue
         run_data.append(rd)
-    start, start_source = _start_values(run_data, law, preset, opts)
+    start, start_source = start_values(run_data, law, preset, opts)
     from identify.fitting.problem import MEASUREMENT
 
     values = {**model.defaults(preset), **{n: preset[n] for n in MEASUREMENT}, **start}
@@ -1008,7 +368,7 @@ def _fit(data, *, coating, options, true_values, progress):
         other = (start_given, "the start before staging", "unstaged")
     elif staged is not None and staged != start_given:
         other = (staged, "the staged start it rejected", "staged")
-    why = (_suspect(prob, best) or _improbable(prob, best)) if other is not None else ""
+    why = (suspect_reason(prob, best) or improbable(prob, best)) if other is not None else ""
     if why:
         solve_from(prob.initial_w(other[0]), f"the fit looks wrong ({why}); again from {other[1]}")
         better = results[-1]["f"] < best["f"]
@@ -1025,10 +385,10 @@ def _fit(data, *, coating, options, true_values, progress):
     # start cures, and the sequence decision cures it first): a seeded multistart spread
     # over the plausible range, so that the answer is the best of several basins rather
     # than the first one reached
-    why = _suspect(prob, best) or _at_bound(prob, best) or _improbable(prob, best)
+    why = suspect_reason(prob, best) or at_bound(prob, best) or improbable(prob, best)
     rivals = []  # converged solutions of the final problem, for the uniqueness check
     if why and opts.auto_starts:
-        auto = _spread_starts(prob, best["w"], opts.auto_starts,
+        auto = spread_starts(prob, best["w"], opts.auto_starts,
                               np.random.default_rng(opts.seed if opts.seed is not None else AUTO_SEED), preset)
         n_before = len(results)
         stage = Stage(say, "spread starts", len(auto))
@@ -1056,7 +416,7 @@ def _fit(data, *, coating, options, true_values, progress):
     result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,
                           time.perf_counter() - wall0)
     result.timing["sequence_s"] = float(t_seq)
-    _flag_rivals(result, prob, best, rivals)
+    flag_rivals(result, prob, best, rivals)
     result.regime_runs = regime_runs
     _check_left_out(result, model, prob, say)
     # arcs the integrator could not finish at any tolerance: their trial points were

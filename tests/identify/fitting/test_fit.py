@@ -115,7 +115,7 @@ def test_a_loose_solve_stops_where_a_sequence_decision_can_and_the_fit_ends_tigh
 def test_the_full_tolerance_solve_after_the_sequence(ends):
     """A loose solution is solved on to the full tolerance; if that fails the loose point
     stands, reported as not converged, never as the loose solve's success."""
-    from identify.fitting.driver import _full_tolerance
+    from identify.fitting.sequence_decision import full_tolerance
 
     class Stub:
         def solve(self, w):
@@ -125,7 +125,7 @@ def test_the_full_tolerance_solve_after_the_sequence(ends):
                         success=ends != "nan", iterations=2, wall_s=0.5)
 
     best = dict(w=np.zeros(2), f=2.0, status="Solve_Succeeded", success=True, iterations=5, wall_s=1.0, loose=True)
-    out = _full_tolerance(Stub(), best)
+    out = full_tolerance(Stub(), best)
     assert "loose" not in out
     if ends == "solves":
         assert out["success"] and out["f"] == 1.0 and out["iterations"] == 7
@@ -319,7 +319,7 @@ def _suspect_once(monkeypatch):
         calls.append(res["f"])
         return "forced by the test" if len(calls) == 1 else ""
 
-    monkeypatch.setattr(fit_mod, "_suspect", suspect_once)
+    monkeypatch.setattr(fit_mod, "suspect_reason", suspect_once)
 
 
 def test_a_suspect_solution_is_solved_again_from_the_unstaged_start(small_traces, monkeypatch):
@@ -418,12 +418,11 @@ def test_an_ambiguous_trigger_is_tried_at_its_other_step(small_traces, margin, m
     the whole model and keeps it (χ² falls); not marked, it is not tried there. (The
     mode sequence and the misfit-trigger pass, switched off here, fix this simple case
     themselves.)"""
-    import importlib
 
     from identify.traces.events import extract_events
 
     monkeypatch.setattr(Problem, "refine_triggers", lambda self, w, **kw: ({}, 0))
-    monkeypatch.setattr(importlib.import_module("identify.fitting.driver"), "missed_slips", lambda prob, w: ({}, 0))
+    monkeypatch.setattr("identify.fitting.sequence_decision.missed_slips", lambda prob, w: ({}, 0))
 
     evs = [extract_events(t) for t in small_traces]
     j = len(evs[0].slips["trigger_step"]) // 2
@@ -533,13 +532,12 @@ def test_many_late_triggers_are_moved_in_one_trial(small_traces, monkeypatch, ru
     ~36 steps, 12 in all) three wrong slips bend the run's fit until their residuals read
     +2 steps: the batch trial raises χ², is not kept, and the passes still repair the
     sequence."""
-    import importlib
 
     import identify.fitting.sequence as seq
     from identify.traces.events import extract_events
 
     monkeypatch.setattr(Problem, "refine_triggers", lambda self, w, **kw: ({}, 0))
-    monkeypatch.setattr(importlib.import_module("identify.fitting.driver"), "missed_slips", lambda prob, w: ({}, 0))
+    monkeypatch.setattr("identify.fitting.sequence_decision.missed_slips", lambda prob, w: ({}, 0))
     if batch == "off":
         monkeypatch.setattr(seq, "BATCH_MIN", 4)
     evs = [extract_events(t) for t in small_traces]
@@ -576,25 +574,25 @@ def test_insertions_go_with_the_first_moves_that_do_not_meet_them():
     first); a move that meets or crosses an inserted slip is left to the next round."""
     from types import SimpleNamespace
 
-    from identify.fitting.driver import _with_insertions
+    from identify.fitting.sequence_decision import with_insertions
 
     prob = SimpleNamespace(runs=[SimpleNamespace(trigger_steps=np.array([10, 20, 30, 40])),
                                  SimpleNamespace(trigger_steps=np.array([5, 15]))])
     moved = {0: np.array([10, 21, 30, 41])}
-    changes, n_moved, n = _with_insertions(prob, moved, 2, {0: np.array([10, 20, 25, 30, 40]),
+    changes, n_moved, n = with_insertions(prob, moved, 2, {0: np.array([10, 20, 25, 30, 40]),
                                                              1: np.array([5, 9, 15])}, 2)
     assert (n_moved, n) == (2, 2) and set(changes) == {0, 1}
     np.testing.assert_array_equal(changes[0], [10, 21, 25, 30, 41])
     np.testing.assert_array_equal(changes[1], [5, 9, 15])
     # a slip inserted before a trigger moved later stays in its plateau
-    changes, n_moved, n = _with_insertions(prob, moved, 2, {0: np.array([10, 19, 20, 30, 40])}, 1)
+    changes, n_moved, n = with_insertions(prob, moved, 2, {0: np.array([10, 19, 20, 30, 40])}, 1)
     np.testing.assert_array_equal(changes[0], [10, 19, 21, 30, 41])
     # the moved trigger meets the inserted slip, or passes it: that move is not made
     for moves, ins in (([10, 21, 30, 41], 21), ([10, 23, 30, 41], 22)):
-        changes, n_moved, n = _with_insertions(prob, {0: np.array(moves)}, 2, {0: np.r_[10, 20, ins, 30, 40]}, 1)
+        changes, n_moved, n = with_insertions(prob, {0: np.array(moves)}, 2, {0: np.r_[10, 20, ins, 30, 40]}, 1)
         assert (n_moved, n) == (1, 1)
         np.testing.assert_array_equal(changes[0], [10, 20, ins, 30, 41])
-    changes, n_moved, n = _with_insertions(prob, moved, 2, {}, 0)
+    changes, n_moved, n = with_insertions(prob, moved, 2, {}, 0)
     assert changes is moved and (n_moved, n) == (2, 0)
 
 
@@ -758,12 +756,11 @@ def test_a_wrong_slip_is_repaired_where_its_trigger_misfits(small_traces, error,
     the missed-slip scan switched off, the misfit-trigger pass finds each where the
     model's triggers misfit and puts the detector's true sequence back; with no trials
     (``sequence_trials=0``) the wrong sequence stays."""
-    import importlib
 
     from identify.traces.events import extract_events
 
     monkeypatch.setattr(Problem, "refine_triggers", lambda self, w, **kw: ({}, 0))
-    monkeypatch.setattr(importlib.import_module("identify.fitting.driver"), "missed_slips", lambda prob, w: ({}, 0))
+    monkeypatch.setattr("identify.fitting.sequence_decision.missed_slips", lambda prob, w: ({}, 0))
     evs = [extract_events(t) for t in small_traces]
     true = np.asarray(evs[1].slips["trigger_step"], int)
     j = len(true) // 2
@@ -1381,16 +1378,16 @@ def test_a_stall_on_forward_differences_is_solved_on_central_ones(small_fit, mon
 
 
 def test_what_makes_a_solution_suspect(small_fit):
-    from identify.fitting.driver import _suspect
+    from identify.fitting.suspect import suspect_reason
 
     prob, w = small_fit.problem, small_fit.w
     f = 0.5 * float(prob.residuals(w) @ prob.residuals(w))
-    assert _suspect(prob, dict(f=f, success=True)) == ""
-    assert "Line_Search_Failed" in _suspect(prob, dict(f=f, success=False, status="Line_Search_Failed"))
+    assert suspect_reason(prob, dict(f=f, success=True)) == ""
+    assert "Line_Search_Failed" in suspect_reason(prob, dict(f=f, success=False, status="Line_Search_Failed"))
     dof = prob.dof()
     f5 = 0.5 * (5 * dof - prob.chi2_constant())  # reduced χ² 5: the noise explains 1
-    assert "reduced χ² 5" in _suspect(prob, dict(f=f5, success=True))
-    assert _suspect(prob, dict(f=np.inf, success=False)) == "no solution"
+    assert "reduced χ² 5" in suspect_reason(prob, dict(f=f5, success=True))
+    assert suspect_reason(prob, dict(f=np.inf, success=False)) == "no solution"
 
 
 def test_start_takes_the_reduced_analysis_only_where_it_determines_it(monkeypatch):
@@ -1400,7 +1397,7 @@ def test_start_takes_the_reduced_analysis_only_where_it_determines_it(monkeypatc
     from types import SimpleNamespace
 
     import identify.traces.reduced as reduced
-    from identify.fitting.driver import _start_values
+    from identify.fitting.start_values import start_values
 
     preset = parameter_set("FOTAS")
     fitted = SimpleNamespace(converged=True, parameters=dict(mu_max=0.83, mu_min=0.004, tau=0.044),
@@ -1408,18 +1405,18 @@ def test_start_takes_the_reduced_analysis_only_where_it_determines_it(monkeypatc
     monkeypatch.setattr(reduced, "reduced_fit", lambda red, laws: SimpleNamespace(fits={"exponential": fitted}))
     runs = [SimpleNamespace(kind="events", events=SimpleNamespace(reduced=object())) for _ in range(8)]
     law, opts = get_law("exponential"), FitOptions()
-    start, source = _start_values(runs, law, preset, opts)
+    start, source = start_values(runs, law, preset, opts)
     assert start == {n: preset[n] for n in opts.free}
     assert "mu_min undetermined by the reduced analysis" in source
     fitted.parameters["mu_min"], fitted.stderr["mu_min"] = 0.6, 0.07  # 0.6 ± 0.07 excludes 0
-    start, source = _start_values(runs, law, preset, opts)
+    start, source = start_values(runs, law, preset, opts)
     assert (start["mu_max"], start["mu_min"], start["tau"], start["A"]) == (0.83, 0.6, 0.044, preset["A"])
     assert source == "reduced analysis for mu_max, mu_min, tau; preset for A"
-    start, source = _start_values(runs, law, preset, FitOptions(start={"A": 0.02}))
+    start, source = start_values(runs, law, preset, FitOptions(start={"A": 0.02}))
     assert start["A"] == 0.02 and source == "reduced analysis for mu_max, mu_min, tau; given for A"
     for bad in (dict(tau=np.nan), {}):  # a NaN or a missing standard error: not determined
         fitted.stderr = dict(mu_max=0.0009, mu_min=0.07, **bad)
-        start, source = _start_values(runs, law, preset, opts)
+        start, source = start_values(runs, law, preset, opts)
         # τ alone undetermined: μmax, pinned by the saturated μs, still starts the fit
         assert start == {**{n: preset[n] for n in opts.free}, "mu_max": 0.83} and "tau undetermined" in source
         assert "saturated" in source
@@ -1759,7 +1756,7 @@ def test_a_mode_sequence_that_ends_worse_is_not_kept(small_traces, monkeypatch):
     says what was not kept."""
     import sys
 
-    F = sys.modules["identify.fitting.driver"]  # (the package's attribute `fit` is the function)
+    F = sys.modules["identify.fitting.sequence_decision"]  # (where the fit decides its sequence)
     real = F.misfit_triggers
 
     def worse(prob, best, *a, **k):
@@ -1782,7 +1779,7 @@ def test_a_mode_sequence_that_ends_worse_is_not_kept(small_traces, monkeypatch):
 def test_worse_sequence_compares_excess_chi2():
     """Excess χ² (χ² − observations) decides, with SEQUENCE_SLACK to spare; a solution
     that cannot be evaluated after is worse, one that cannot before decides nothing."""
-    from identify.fitting.driver import SEQUENCE_SLACK, worse_sequence
+    from identify.fitting.sequence_decision import SEQUENCE_SLACK, worse_sequence
 
     class P:
         def __init__(self, n_obs):
@@ -1945,7 +1942,7 @@ def test_start_takes_the_saturated_mu_max_when_tau_is_undetermined():
     analysis cannot fix τ, and the start used to take the preset's μmax 0.796 for that
     alone. The saturated static friction pins μmax: the start now takes it from the data
     (measured 0.765 here), and says where it came from."""
-    from identify.fitting.driver import _start_values
+    from identify.fitting.start_values import start_values
     from identify.model.laws import get_law
 
     truth = dict(mu_max=0.74, mu_min=0.45, tau=0.055, A=0.012)
@@ -1962,7 +1959,7 @@ def test_start_takes_the_saturated_mu_max_when_tau_is_undetermined():
     evs, excluded, coating = prepare_runs(traces)
     assert not excluded
     runs = [make_run_data(ev) for ev in evs]
-    start, origin = _start_values(runs, get_law("exponential"), parameter_set("FOTAS"),
+    start, origin = start_values(runs, get_law("exponential"), parameter_set("FOTAS"),
                                   FitOptions(fixed={"v_stick": V_STICK}))
     assert abs(start["mu_max"] - truth["mu_max"]) < 0.03
     assert "saturated" in origin and "tau undetermined" in origin
@@ -1986,7 +1983,8 @@ def test_spread_starts_cover_each_parameter_range_once_per_stratum(small_traces)
     """A Latin hypercube: with n starts, each free parameter's range (a decade either side
     for log-scaled ones, ±40 % for the others) holds one start in each of its n strata;
     all inside the bounds; seeded."""
-    from identify.fitting.driver import _at_bound, _spread_ranges, _spread_starts
+    from identify.fitting.start_values import spread_ranges, spread_starts
+    from identify.fitting.suspect import at_bound
 
     runs, _, coating = prepare_runs(small_traces)
     model = Model(get_law("exponential"))
@@ -1994,12 +1992,12 @@ def test_spread_starts_cover_each_parameter_range_once_per_stratum(small_traces)
     prob = Problem([make_run_data(ev) for ev in runs], model, values, FitOptions(fixed={"v_stick": V_STICK})).build()
     w0 = prob.initial_w({n: values[n] for n in prob.theta.names})
     n = 5
-    starts = _spread_starts(prob, w0, n, np.random.default_rng(3))
-    again = _spread_starts(prob, w0, n, np.random.default_rng(3))
+    starts = spread_starts(prob, w0, n, np.random.default_rng(3))
+    again = spread_starts(prob, w0, n, np.random.default_rng(3))
     assert all(np.array_equal(a, b) for a, b in zip(starts, again))
     tm, k = prob.theta, prob.n_theta
     th = np.array([w[:k] for w in starts])
-    lo, hi = _spread_ranges(prob, w0)
+    lo, hi = spread_ranges(prob, w0)
     half = np.where(tm.log, np.log(10.0), 0.4 * np.maximum(np.abs(w0[:k]), 1e-3))
     # (τ's range reaches over the data's rests too, which here lie within its decades)
     assert np.all(lo <= w0[:k] - half + 1e-9) and np.all(hi >= np.minimum(w0[:k] + half, tm.hi - 1e-9) - 1e-9)
@@ -2012,13 +2010,13 @@ def test_spread_starts_cover_each_parameter_range_once_per_stratum(small_traces)
     w_bad = w0.copy()
     j = tm.names.index("tau")
     w_bad[j] = np.log(1e-4 / tm.scale[j])
-    lo_bad, hi_bad = _spread_ranges(prob, w_bad, preset=values)
+    lo_bad, hi_bad = spread_ranges(prob, w_bad, preset=values)
     rests = np.concatenate([np.diff(r.trigger_steps) / r.fp for r in prob.runs])
     assert np.exp(hi_bad[j]) * tm.scale[j] >= max(3 * rests.max(), 10 * values["tau"]) * 0.999
-    assert _at_bound(prob, dict(f=1.0, w=w0)) == ""
+    assert at_bound(prob, dict(f=1.0, w=w0)) == ""
     w_lo = w0.copy()
     w_lo[tm.names.index("A")] = tm.lo[tm.names.index("A")]
-    assert _at_bound(prob, dict(f=1.0, w=w_lo)) == "A at a bound"
+    assert at_bound(prob, dict(f=1.0, w=w_lo)) == "A at a bound"
 
 
 def test_a_saved_fit_loads_back_with_the_same_report(small_fit, tmp_path, strict_json):
@@ -2045,7 +2043,7 @@ def test_a_rival_solution_as_good_as_the_best_flags_what_it_moves(small_fit):
     its value; one further off in χ², or inside the interval, does not."""
     import dataclasses
 
-    from identify.fitting.driver import _flag_rivals
+    from identify.fitting.suspect import flag_rivals
 
     params = {n: dataclasses.replace(p) for n, p in small_fit.parameters.items()}
     res = dataclasses.replace(small_fit, parameters=params, multistart=dict(small_fit.multistart))
@@ -2058,9 +2056,9 @@ def test_a_rival_solution_as_good_as_the_best_flags_what_it_moves(small_fit):
     near = w.copy()
     near[j] = tm.to_scaled({**res.values, "tau": res["tau"].value * 1.0001})[j]
     flags = {n: res[n].flag for n in tm.names}
-    _flag_rivals(res, prob, best, [dict(f=res.cost + 5.0, w=far, success=True), dict(f=res.cost, w=near, success=True)])
+    flag_rivals(res, prob, best, [dict(f=res.cost + 5.0, w=far, success=True), dict(f=res.cost, w=near, success=True)])
     assert res.multistart["unique"] and {n: res[n].flag for n in tm.names} == flags
-    _flag_rivals(res, prob, best, [dict(f=res.cost + 1.0, w=far, success=True)])
+    flag_rivals(res, prob, best, [dict(f=res.cost + 1.0, w=far, success=True)])
     assert res.multistart["unique"] is False
     assert "not unique: another converged solution, chi-square +2.00" in res["tau"].flag
     res.multistart.update(starts=5, best_found=1)  # (as the spread starts leave it)

@@ -102,11 +102,11 @@ class _Stub:
 def test_after_inserted_slips_the_warm_point_is_solved_only_when_the_fresh_solve_looks_wrong(
         monkeypatch, ends, solved, kept):
     import identify.fitting.start
-    from identify.fitting.driver import _after_insertion
+    from identify.fitting.sequence_decision import after_insertion
 
     monkeypatch.setattr(identify.fitting.start, "staged_start", lambda prob, values, seed=0: (values, {}))
     prob, restarts = _Stub(ends), []
-    sol = _after_insertion(prob, np.array([2.0]), {"mu_max": 0.8}, 3, FitOptions(), restarts)
+    sol = after_insertion(prob, np.array([2.0]), {"mu_max": 0.8}, 3, FitOptions(), restarts)
     assert prob.solved == solved
     (rec,) = restarts
     assert rec["kept"] == kept and rec["slips_inserted"] == 3

@@ -1,0 +1,236 @@
+"""The fit's options and its error: what to fit, how, and what a fit that cannot be done raises."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from identify.fitting.arcs import ARC_ABSTOL, ARC_RELTOL
+from identify.model.laws import get_law
+from identify.model.params import spec
+from identify.model.plausible import check_parameters
+from identify.model.symbolic import Model
+
+DEFAULT_FREE = ("mu_max", "mu_min", "tau", "A")
+
+
+class FitError(ValueError):
+    """Nothing could be fitted (every run was left out, or the solver failed).
+
+    ``excluded`` lists (run name, why) for runs that were left out; ``regime_runs`` those
+    of them left out for their regime (:class:`identify.fitting.regime_check.RegimeRun`), and
+    ``values`` the parameter values their regime was judged at (the diagnosis screens
+    its candidates on them, :mod:`identify.diagnosis.regime_screen`); ``used`` the runs that could
+    be used, when they were too few to fix the free parameters, and ``counts`` then their
+    (observations, free dimensions)."""
+
+    def __init__(self, message: str, excluded=(), regime_runs=(), values=None, used=(), counts=None):
+        super().__init__(message)
+        self.excluded = list(excluded)
+        self.regime_runs = list(regime_runs)
+        self.values = dict(values or {})
+        self.used = list(used)
+        self.counts = counts
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """How to fit.
+
+    Parameters
+    ----------
+    law : str
+        Aging law (``exponential``, ``logarithmic``, ``logistic``).
+    free : tuple of str
+        Parameters estimated (any model parameter: friction, platform or effect).
+    fixed : dict
+        Values for parameters that are not free (default: the coating's preset).
+    bounds : dict
+        name -> (lower, upper) for free parameters (default: the parameter table's).
+    start : dict
+        Start values for free parameters (default: the reduced analysis, else the preset).
+    free_offset : bool
+        Estimate a per-run elongation zero offset.
+    use_creep_runs : bool
+        Use runs without resolvable slips as steady-sliding observations when the model
+        at the start parameters creeps there.
+    max_arc_steps : int
+        Largest number of puller steps one slip arc may span.
+    arc_reltol, arc_abstol : float
+        Tolerances of the arcs (scaled states); why the defaults: ``identify.fitting.arcs.ARC_RELTOL``.
+    arc_jacobian : {"forward", "central", "exact"}
+        The arcs' derivatives while the solver iterates: finite differences (``forward``,
+        default: one integration per input instead of two; ``central``), or ``exact``:
+        IDAS sensitivities through the stop time (:mod:`identify.fitting.exact_arcs`), 30-40×
+        the cost per arc and not shared among arcs. The covariance always uses central
+        differences.
+    share_arc_jacobian : bool
+        Let slips whose inputs nearly agree share one slip's forward differences
+        (``identify.fitting.arcs.SHARE_TOL``; default True): a run's slips repeat nearly one
+        cycle, and most of an iteration's integrations went to derivatives known already.
+    solver : {"gauss-newton", "ipopt"}
+        ``gauss-newton`` (default): constrained Gauss–Newton SQP with an ℓ1-merit line
+        search (Bock's method for multiple shooting). ``ipopt``: Ipopt with the same
+        Gauss–Newton Hessian and oracles — measured to stall on these problems
+        (README), kept for comparison.
+    staged_start : bool
+        Start from the trigger and slip-length stages of :mod:`identify.fitting.start`.
+    max_iter, tol : iteration limit; tolerance on the relative step and feasibility.
+    threads : int
+        Threads for the arc evaluations.
+    multistart : int
+        Extra starts drawn around the first (log-normal, 30 %) with ``seed``.
+    auto_starts : int
+        When the solution still looks wrong after the start before or after staging was
+        tried (not converged, reduced χ² above 2, a parameter at a bound), this many more
+        starts spread over each parameter's plausible range (a decade either side of the
+        suspect solution and of the coating's preset for log-scaled parameters, ±40 % for
+        the others; τ also over the data's rest times), a Latin hypercube seeded by
+        ``seed``; the best solution is kept and the report's start line says so. 0 turns
+        it off.
+    check_platform : bool
+        Refuse fixed and start values outside what a contact on the platform can
+        plausibly have (:data:`identify.model.plausible.PARAMETER_RANGES`: ``tau = 67.4``
+        is milliseconds typed for seconds), naming the likely unit slip; False takes them.
+    sequence_trials : int
+        Trials of the last mode-sequence pass (:func:`identify.fitting.sequence.misfit_triggers`:
+        local changes where the model's triggers misfit, each a short re-solve of the
+        changed run alone with the parameters held; a kept change is solved jointly);
+        0 turns it off. Data whose triggers fit pay none.
+    scale_covariance : bool
+        Scale the model-based covariance by the reduced χ² (lmfit's default).
+    free_phase : bool
+        Estimate per run the phase of the step interval at which its slips recur,
+        bounded to [0, 1] (the interval constraint for what the run's slips share, with a
+        weak uniform prior), instead of taking the middle. A stick-slip cycle locks its
+        triggers at one phase (measured 0.71 on a k = 20.3 N/m, 30 µN, 100 Hz run, the
+        same from any start), which the middle pulls on: on three calibration repeats the
+        bounded phases removed τ's bias (z −1.5…−2.1 → 0.2…0.4) but made its standard
+        error 3–5× larger and the fit 5–10× slower, ending in a failed line search. Off
+        by default.
+    arc_start : {"aged", "mid"}
+        The contact state a slip arc starts from. ``aged`` (default): the previous
+        slip's end state aged over the rest, a shooting variable per slip (its position
+        in the trigger interval) tied to it by a constraint, as in the simulator; a
+        run's first slip from an estimated initial contact (uniform prior over its
+        interval: the contact before the run is not observed).
+        ``mid``: every arc starts from the state whose capacity sits in the middle of its
+        trigger interval (a valid trigger for any parameters, the model off by up to
+        half an interval of capacity, ~0.5 nm of slip length: invisible at 90 nm, but
+        ~10 σ on noiseless traces).
+    covariance : {"robust", "cluster", "model"}
+        ``robust`` (default): the slips of a run share a phase error, as far as the
+        spread of their trigger positions says (an exchangeable correlation per run, the
+        expected meat of a sandwich); ``cluster``: cluster-robust by run from the
+        realised residuals (few runs make it run small); ``model``: every residual
+        independent.
+    trigger : {"uniform", "interval"}
+        How the data's trigger step enters. ``uniform`` (default): a residual
+        √12·(s − φ) per slip, s the capacity's position in its step interval, φ the
+        run's phase — a Gaussian stand-in (same mean and variance) for the flat
+        likelihood of a position known only to lie in the interval; smooth, it guides
+        the mode-sequence repairs and gives the triggers their share of the covariance.
+        It pulls every s towards φ, which biases the estimates where the frames leave
+        nothing to pull against: on noiseless data by ~2e-3 relative. ``interval``: the
+        flat likelihood, 0 ≤ s ≤ 1 as bounds on the shooting variables and no trigger
+        residual — consistent as the noise vanishes; for noiseless or nearly noiseless
+        data. The fit is done with the uniform encoding (start, solves, mode sequence)
+        and then solved once more from its solution with the interval; a re-solve that
+        does not converge is not kept (the report's start line says so). Two caveats:
+        the bounds are the plain interval [F_s(e − Δx), F_s(e)], without the aging
+        during the last step that the uniform residual subtracts from its lower end
+        (:meth:`identify.fitting.problem.Problem.position`), so starts a step early are admitted;
+        and the covariance holds the frames' information only. On noisy data that is
+        little: the triggers are where μmax and τ show, and bounds that are not active
+        add nothing to a local covariance (measured on two 90 nm runs: the re-solve
+        `Stalled`, standard errors of 1000 % and more). Needs ``arc_start="aged"``.
+        Measured on two noiseless runs simulated at tolerance 1e-9, from 10 % off:
+        uniform −2.3e-3 / −4.2e-4 / −3.8e-3 / +1.5e-3 (μmax, μmin, τ, A), interval within
+        4e-5 of the truth (6e-5 from 5 % off).
+    """
+
+    law: str = "exponential"
+    free: tuple = DEFAULT_FREE
+    fixed: Mapping[str, float] = field(default_factory=dict)
+    bounds: Mapping[str, tuple] = field(default_factory=dict)
+    start: Mapping[str, float] = field(default_factory=dict)
+    free_offset: bool = False
+    use_creep_runs: bool = True
+    max_arc_steps: int = 64
+    arc_reltol: float = ARC_RELTOL
+    arc_abstol: float = ARC_ABSTOL
+    arc_jacobian: str = "forward"
+    share_arc_jacobian: bool = True
+    solver: str = "gauss-newton"
+    staged_start: bool = True
+    max_iter: int = 100
+    tol: float = 1e-8
+    threads: int = 2
+    multistart: int = 0
+    sequence_trials: int = 64
+    seed: int | None = None
+    scale_covariance: bool = True
+    covariance: str = "robust"
+    free_phase: bool = False
+    arc_start: str = "aged"
+    trigger: str = "uniform"
+    stick_speed: str = "check"
+    auto_starts: int = 4
+    check_platform: bool = True
+
+    def __post_init__(self):
+        get_law(self.law)
+        free = tuple(self.free)
+        object.__setattr__(self, "free", free)
+        if not free:
+            raise ValueError("free: at least one parameter must be free")
+        from identify.fitting.problem import MEASUREMENT
+
+        model = Model(get_law(self.law))
+        allowed = set(model.parameter_names) | set(MEASUREMENT)
+        for name in free:
+            if name not in allowed:
+                raise ValueError(
+                    f"free: {name!r} is not a parameter of the {self.law} model; "
+                    f"choose from {', '.join(model.parameter_names + MEASUREMENT)}"
+                )
+        if len(set(free)) != len(free):
+            raise ValueError(f"free: {free} lists a parameter twice")
+        for name, value in dict(self.fixed).items():
+            spec(name).check(value, "fixed ")
+            if name in free:
+                raise ValueError(f"{name} is both free and fixed")
+        for name, value in dict(self.start).items():
+            spec(name).check(value, "start ")
+        if self.check_platform:
+            check_parameters(self.fixed, "fixed ")
+            check_parameters(self.start, "start ")
+        for name, (lo, hi) in dict(self.bounds).items():
+            if name not in free:
+                raise ValueError(f"bounds: {name} is not free")
+            if not lo < hi:
+                raise ValueError(f"bounds: {name} needs lower < upper, got ({lo}, {hi})")
+        for name in ("max_arc_steps", "max_iter", "threads"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} = {getattr(self, name)!r}: must be a positive integer")
+        if self.multistart < 0:
+            raise ValueError(f"multistart = {self.multistart!r}: must be >= 0")
+        if self.auto_starts < 0:
+            raise ValueError(f"auto_starts = {self.auto_starts!r}: must be >= 0")
+        if self.sequence_trials < 0:
+            raise ValueError(f"sequence_trials = {self.sequence_trials!r}: must be >= 0")
+        if self.arc_jacobian not in ("forward", "central", "exact"):
+            raise ValueError(f"arc_jacobian = {self.arc_jacobian!r}: choose 'forward', 'central' or 'exact'")
+        if self.arc_start not in ("aged", "mid"):
+            raise ValueError(f"arc_start = {self.arc_start!r}: choose 'aged' or 'mid'")
+        if self.trigger not in ("uniform", "interval"):
+            raise ValueError(f"trigger = {self.trigger!r}: choose 'uniform' or 'interval'")
+        if self.trigger == "interval" and self.arc_start != "aged":
+            raise ValueError("trigger = 'interval' needs arc_start = 'aged': the interval bounds the arcs' "
+                             "start positions, which arc_start = 'mid' does not have")
+        if self.covariance not in ("robust", "cluster", "model"):
+            raise ValueError(f"covariance = {self.covariance!r}: choose 'robust', 'cluster' or 'model'")
+        if self.solver not in ("gauss-newton", "ipopt"):
+            raise ValueError(f"solver = {self.solver!r}: choose 'gauss-newton' or 'ipopt'")
+        if self.stick_speed not in ("check", "auto", "off"):
+            raise ValueError(f"stick_speed = {self.stick_speed!r}: choose 'check', 'auto' or 'off'")
