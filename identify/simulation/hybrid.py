@@ -25,6 +25,9 @@ Two engines integrate moving phases, from the same symbolic model:
     CasADi's Rosenbrock plugin with the model's zero indicators and freezing transition:
     it stops exactly at the event and costs nothing after it; used by the identification
     because its sensitivities include the event times.
+
+The run's inputs are in :mod:`identify.simulation.conditions`; what it gives (events,
+regime, trajectories, camera sampling, report) in :mod:`identify.simulation.result`.
 """
 
 from __future__ import annotations
@@ -32,18 +35,27 @@ from __future__ import annotations
 import logging
 import math
 import time as _time
-import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from identify.messages import summarise
 from identify.model.laws import get_law
-from identify.model.params import ParameterError, normal_load_from_voltage, parameter_set, validate_parameters
-from identify.model.plausible import check_parameters, platform_problem
+from identify.model.params import parameter_set, validate_parameters
 from identify.model.symbolic import LENGTH_UNIT, N_STATES, SPEED_UNIT, TIME_UNIT, Model, slip_integrator, slip_rhs
+from identify.simulation.conditions import (
+    MAX_TRAVEL_M,
+    RunConditions,
+    SimulationOptions,
+    check_platform_conditions,
+    normal_load_N,
+    parameter_overrides,
+    step_count,
+)
+
+# (``X as X``: names of the parts split out of this module stay importable from it)
+from identify.simulation.result import MIN_SLIP_STEPS as MIN_SLIP_STEPS
+from identify.simulation.result import REGIMES, EventTable, MovingPhase, SimulationResult, classify
 
 __all__ = [
     "RunConditions",
@@ -58,427 +70,8 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-MAX_TRAVEL_M = 100e-6  # nanotractor travel (Table I)
-REGIMES = ("stick-slip", "stepping", "creep", "no-slip")
-MIN_SLIP_STEPS = 0.1  # a moving phase is a slip when it moves at least this many steps
 _CHUNK_POINTS = 16  # output points per IDAS sub-interval
 _HOLD_SLACK = 1e-6  # relative force tolerance of the hold test at a located stop
-
-
-# ----------------------------------------------------------------------------- inputs
-@dataclass(frozen=True)
-class RunConditions:
-    """The conditions of one run, SI.
-
-    Parameters
-    ----------
-    spring_constant : float
-        k, N/m.
-    normal_load : float
-        Nb, N.
-    step_frequency : float
-        fp, Hz.
-    n_steps : int
-        Number of puller steps (travel = n_steps·Δxp).
-    first_step_time : float, optional
-        Time of the first step, s (default 1/fp: steps at t = n/fp, n ≥ 1).
-    initial_elongation : float
-        e at t = 0, m (default 0: spring relaxed).
-    initial_state : float or None
-        Contact state at t = 0 (None: fully aged, ψ = μmax for the exponential law).
-    """
-
-    spring_constant: float
-    normal_load: float
-    step_frequency: float
-    n_steps: int
-    first_step_time: float | None = None
-    initial_elongation: float = 0.0
-    initial_state: float | None = None
-
-    def __post_init__(self):
-        for name, value, rule in (
-            ("spring_constant_N_per_m", self.spring_constant, "must be > 0"),
-            ("normal_load", self.normal_load, "must be > 0"),
-            ("step_frequency_Hz", self.step_frequency, "must be > 0"),
-        ):
-            v = float(value)
-            if not math.isfinite(v) or v <= 0:
-                raise ParameterError(f"{name} = {value!r}: {rule} and finite")
-        if int(self.n_steps) != self.n_steps or self.n_steps < 1:
-            raise ParameterError(f"n_steps = {self.n_steps!r}: must be a positive integer (travel > 0)")
-        if not math.isfinite(float(self.initial_elongation)):
-            raise ParameterError(f"initial_elongation = {self.initial_elongation!r}: must be finite")
-
-    @property
-    def t_first(self) -> float:
-        return 1.0 / self.step_frequency if self.first_step_time is None else float(self.first_step_time)
-
-    @property
-    def end_time(self) -> float:
-        """The run ends one step period after its last step."""
-        return self.t_first + self.n_steps / self.step_frequency
-
-
-@dataclass(frozen=True)
-class SimulationOptions:
-    """How moving phases are integrated.
-
-    Parameters
-    ----------
-    integrator : {"idas", "rosenbrock"}
-        Engine for moving phases (module docstring).
-    reltol, abstol : float or None
-        Integrator tolerances (abstol in the scaled units: µm, mm/s). Defaults per
-        engine: rosenbrock 1e-5/1e-6 (slip lengths within 1e-3 nm of a 1e-10 reference),
-        idas 1e-8/1e-10 (looser IDAS tolerances mis-time the creep nucleation).
-    record : bool
-        Keep the fine trajectory of every moving phase (for plots and frame sampling
-        inside slips); False keeps only the events.
-    max_phase_steps : int
-        A moving phase that crosses more puller steps than this is cut short and the run
-        stopped with a warning (protects against runaway cost).
-    """
-
-    integrator: str = "rosenbrock"
-    reltol: float | None = None
-    abstol: float | None = None
-    record: bool = True
-    max_phase_steps: int = 1_000_000
-
-    def __post_init__(self):
-        if self.integrator not in ("idas", "rosenbrock"):
-            raise ValueError(
-                f"integrator = {self.integrator!r}: choose 'idas' or 'rosenbrock'"
-            )
-        defaults = {"rosenbrock": (1e-5, 1e-6), "idas": (1e-8, 1e-10)}[self.integrator]
-        for name, default in zip(("reltol", "abstol"), defaults):
-            v = getattr(self, name)
-            if v is None:
-                object.__setattr__(self, name, default)
-                continue
-            if not (v > 0 and math.isfinite(v)):
-                raise ValueError(f"{name} = {v!r}: must be a positive number")
-
-
-# ----------------------------------------------------------------------------- outputs
-_EVENT_COLUMNS = (
-    ("time_s", "trigger time (the step instant)"),
-    ("step_index", "index n of the triggering step (1 = first)"),
-    ("peak_elongation_m", "elongation just after the triggering step"),
-    ("slip_length_m", "block displacement over the moving phase"),
-    ("peak_speed_m_per_s", "largest |ẋ| in the phase"),
-    ("rest_time_s", "rest before the trigger (from the previous stop, or t = 0)"),
-    ("duration_s", "from trigger to stop"),
-    ("state_before", "contact state at the trigger"),
-    ("state_after", "contact state at the stop"),
-    ("steps_crossed", "puller steps applied while moving"),
-    ("reversals", "stops the block could not hold (it went on)"),
-    ("stop_elongation_m", "elongation at the stop"),
-)
-
-
-@dataclass
-class EventTable:
-    """Slip events of a run, one array per column (see ``EventTable.columns``)."""
-
-    data: dict[str, np.ndarray]
-    columns = _EVENT_COLUMNS
-
-    def __len__(self) -> int:
-        return len(self.data["time_s"])
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.data[name]
-
-    def to_dict(self) -> dict[str, list]:
-        return {k: v.tolist() for k, v in self.data.items()}
-
-    def select(self, mask) -> EventTable:
-        return EventTable({k: v[mask] for k, v in self.data.items()})
-
-    @classmethod
-    def from_rows(cls, rows: list[dict]) -> EventTable:
-        data = {}
-        for name, _ in _EVENT_COLUMNS:
-            dtype = int if name in ("step_index", "steps_crossed", "reversals") else float
-            data[name] = np.array([r[name] for r in rows], dtype=dtype)
-        return cls(data)
-
-
-@dataclass
-class _Phase:
-    t: np.ndarray  # s
-    x: np.ndarray  # m
-    v: np.ndarray  # m/s
-    state: np.ndarray
-
-
-@dataclass
-class SimulationResult:
-    """One simulated run: events, regime, trajectories, and a camera sampler.
-
-    Attributes
-    ----------
-    model : Model
-    parameters : dict
-        The parameter values used (SI).
-    conditions : RunConditions
-    events : EventTable
-    regime : str
-        ``stick-slip``, ``stepping``, ``creep`` or ``no-slip`` (see :func:`classify`).
-    phases : list
-        Fine trajectory of every moving phase (empty unless ``record``).
-    stops : ndarray, shape (n, 4)
-        (time, x, state, elongation) at every stop, and at t = 0.
-    wall_time_s : float
-    integrator_calls : int
-    warnings : list of str
-    """
-
-    model: Model
-    parameters: dict
-    conditions: RunConditions
-    events: EventTable
-    regime: str
-    phases: list
-    stops: np.ndarray
-    wall_time_s: float
-    integrator_calls: int
-    options: SimulationOptions
-    completed: bool = True
-    warnings: list = field(default_factory=list)
-    coating: str | None = None
-
-    # ------------------------------------------------------------- derived numbers
-    @property
-    def slips(self) -> EventTable:
-        """The moving phases that moved the block at least a tenth of a puller step.
-
-        ``events`` also holds creep nucleations that failed (the block moved picometres to
-        nanometres and stopped again as its contact aged); no camera can see those.
-        """
-        ev = self.events
-        if not len(ev):
-            return ev
-        return ev.select(np.abs(ev["slip_length_m"]) >= MIN_SLIP_STEPS * self.step)
-
-    @property
-    def step(self) -> float:
-        return self.model.step(self._P)
-
-    @property
-    def _P(self) -> dict:
-        return {**self.parameters, "k": self.conditions.spring_constant, "Nb": self.conditions.normal_load}
-
-    def puller_position(self, t) -> np.ndarray:
-        """xp(t), m: Δxp times the number of steps taken by t."""
-        c = self.conditions
-        n = np.floor((np.asarray(t, float) - c.t_first) * c.step_frequency + 1 + 1e-9)
-        return np.clip(n, 0, c.n_steps) * self.step
-
-    def block_position(self, t) -> np.ndarray:
-        """x(t), m (linear between recorded points inside moving phases)."""
-        tt, xx = self._x_table()
-        return np.interp(np.asarray(t, float), tt, xx)
-
-    def elongation(self, t) -> np.ndarray:
-        """e(t) = xp(t) − x(t), m."""
-        return self.puller_position(t) - self.block_position(t)
-
-    def _x_table(self):
-        if getattr(self, "_xt", None) is None:
-            pts_t = [self.stops[:, 0]]
-            pts_x = [self.stops[:, 1]]
-            for ph in self.phases:
-                pts_t.append(ph.t)
-                pts_x.append(ph.x)
-            ev = self.events
-            if len(ev):  # phase starts (block at rest until the trigger)
-                idx = np.searchsorted(self.stops[:, 0], ev["time_s"], side="right") - 1
-                pts_t.append(ev["time_s"])
-                pts_x.append(self.stops[np.clip(idx, 0, None), 1])
-            tt = np.concatenate(pts_t)
-            xx = np.concatenate(pts_x)
-            order = np.argsort(tt, kind="stable")
-            tt, xx = tt[order], xx[order]
-            end = self.conditions.end_time
-            tt = np.append(tt, max(end, tt[-1]))
-            xx = np.append(xx, xx[-1])
-            self._xt = (tt, xx)
-        return self._xt
-
-    def state_at(self, t) -> np.ndarray:
-        """Contact state at times ``t`` (closed form at rest, recorded while moving)."""
-        t = np.asarray(t, float)
-        law = self.model.law
-        P = self._P
-        stop_t = self.stops[:, 0]
-        i = np.clip(np.searchsorted(stop_t, t, side="right") - 1, 0, len(stop_t) - 1)
-        out = law.rest(self.stops[i, 2], np.maximum(t - stop_t[i], 0.0), P)
-        # inside a moving phase: recorded values
-        for ph in self.phases:
-            m = (t >= ph.t[0]) & (t <= ph.t[-1])
-            if m.any():
-                out = np.where(m, np.interp(t, ph.t, ph.state), out)
-        return out
-
-    def velocity(self, t) -> np.ndarray:
-        t = np.asarray(t, float)
-        out = np.zeros_like(t)
-        for ph in self.phases:
-            m = (t >= ph.t[0]) & (t <= ph.t[-1])
-            if m.any():
-                out = np.where(m, np.interp(t, ph.t, ph.v), out)
-        return out
-
-    # ------------------------------------------------------------- camera
-    def sample(
-        self,
-        frame_rate_Hz: float | None = None,
-        frame_phase: float = 0.5,
-        noise_nm: float = 0.0,
-        seed: int | None = None,
-        exposure_s: float | None = None,
-        drift_rate_m_per_s: float | None = None,
-        offset_m: float | None = None,
-        name: str = "run",
-        metadata: Mapping[str, Any] | None = None,
-        times_s: np.ndarray | None = None,
-    ):
-        """The camera's trace of this run (:class:`identify.traces.io.Trace`).
-
-        Frames are at ``t_j = (j + frame_phase)/frame_rate`` (default 2 frames per step
-        period, each in the middle of its half period), or at ``times_s`` (s, the run's
-        clock: steps at n/fp; times at or past the run's end are dropped), e.g. a
-        recorded trace's own frames. Measurement effects default to
-        the run's parameters (``exposure``, ``drift_rate``, ``e_offset``). Gaussian noise
-        of ``noise_nm`` (standard deviation, nm) is drawn from ``seed``.
-        """
-        from identify.traces.io import Trace
-
-        c = self.conditions
-        fr = 2.0 * c.step_frequency if frame_rate_Hz is None else float(frame_rate_Hz)
-        if not (fr > 0 and math.isfinite(fr)):
-            raise ParameterError(f"frame_rate_Hz = {frame_rate_Hz!r}: must be > 0")
-        if not (0.0 <= frame_phase < 1.0):
-            raise ParameterError(f"frame_phase = {frame_phase!r}: must lie in [0, 1)")
-        if noise_nm < 0 or not math.isfinite(noise_nm):
-            raise ParameterError(f"noise_nm = {noise_nm!r}: must be >= 0")
-        if times_s is not None:
-            t = np.asarray(times_s, float).ravel()
-            if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
-                raise ParameterError("times_s: must be finite and strictly increasing")
-            t = t[(t >= 0) & (t < c.end_time)]
-            if t.size < 2:
-                raise ParameterError(f"times_s: fewer than 2 frames within the run (0 to {c.end_time:.6g} s)")
-        else:
-            n = int(math.floor(c.end_time * fr - frame_phase)) + 1
-            t = (np.arange(n) + frame_phase) / fr
-            t = t[t < c.end_time]
-        P = self.parameters
-        exposure = P.get("exposure", 0.0) if exposure_s is None else exposure_s
-        drift = P.get("drift_rate", 0.0) if drift_rate_m_per_s is None else drift_rate_m_per_s
-        offset = P.get("e_offset", 0.0) if offset_m is None else offset_m
-        if exposure > 0:
-            sub = (np.arange(16) + 0.5) / 16 - 0.5
-            e = self.elongation(t[:, None] + exposure * sub[None, :]).mean(axis=1)
-        else:
-            e = self.elongation(t)
-        e = e + offset + drift * t
-        if noise_nm > 0:
-            rng = np.random.default_rng(seed)
-            e = e + rng.normal(0.0, noise_nm * 1e-9, size=e.shape)
-        meta = dict(metadata or {})
-        meta.setdefault("frame_rate_Hz", fr)
-        return Trace.from_simulation(self, t, e, name=name, extra=meta)
-
-    # ------------------------------------------------------------- reporting
-    def summary(self) -> dict:
-        """The JSON summary of the CLI (SI values, units in the keys)."""
-        ev = self.slips
-        slips = ev["slip_length_m"] if len(ev) else np.array([])
-        return dict(
-            n_slips=int(len(ev)),
-            n_moving_phases=int(len(self.events)),
-            regime=self.regime,
-            completed=self.completed,
-            slip_lengths_um=(slips * 1e6).round(6).tolist(),
-            peak_elongations_um=(ev["peak_elongation_m"] * 1e6).round(6).tolist() if len(ev) else [],
-            peak_slip_speed_m_per_s=float(ev["peak_speed_m_per_s"].max()) if len(ev) else 0.0,
-            peak_slip_speeds_m_per_s=ev["peak_speed_m_per_s"].tolist() if len(ev) else [],
-            mean_slip_length_um=float(slips.mean() * 1e6) if len(ev) else None,
-            mean_peak_elongation_um=float(ev["peak_elongation_m"].mean() * 1e6) if len(ev) else None,
-            rest_times_s=ev["rest_time_s"].tolist() if len(ev) else [],
-            mean_rest_time_s=float(ev["rest_time_s"][1:].mean()) if len(ev) > 1 else None,
-            states_after=ev["state_after"].tolist() if len(ev) else [],
-            moving_fraction=self.moving_fraction,
-            spring_constant_N_per_m=self.conditions.spring_constant,
-            normal_load_uN=self.conditions.normal_load * 1e6,
-            step_frequency_Hz=self.conditions.step_frequency,
-            travel_um=self.conditions.n_steps * self.step * 1e6,
-            law=self.model.law.name,
-            parameters=dict(self.parameters),
-            integrator=self.options.integrator,
-            integrator_calls=self.integrator_calls,
-            wall_time_s=self.wall_time_s,
-            warnings=list(self.warnings),
-        )
-
-    @property
-    def moving_fraction(self) -> float:
-        """Share of the time after the first trigger that the block spends moving."""
-        ev = self.events
-        if not len(ev):
-            return 0.0
-        span = self.conditions.end_time - ev["time_s"][0]
-        return float(np.clip(ev["duration_s"].sum() / span, 0.0, 1.0)) if span > 0 else 0.0
-
-    def report(self) -> str:
-        s = self.summary()
-        c = self.conditions
-        lines = [
-            f"Simulation ({self.model.law.name} law, {self.options.integrator})",
-            f"  k = {c.spring_constant:g} N/m, Nb = {c.normal_load * 1e6:g} µN, fp = {c.step_frequency:g} Hz, "
-            f"travel = {s['travel_um']:.2f} µm ({c.n_steps} steps)",
-            f"  regime: {self.regime}; {s['n_slips']} slips; moving {100 * s['moving_fraction']:.1f} % of the time",
-        ]
-        if s["n_slips"]:
-            sl = np.array(s["slip_lengths_um"])
-            lines += [
-                f"  slip length  {sl.mean():.4f} µm (min {sl.min():.4f}, max {sl.max():.4f})",
-                f"  peak elongation {np.mean(s['peak_elongations_um']):.4f} µm",
-                f"  peak slip speed {s['peak_slip_speed_m_per_s'] * 100:.3f} cm/s",
-            ]
-            if s["mean_rest_time_s"] is not None:
-                lines.append(f"  mean rest time {s['mean_rest_time_s'] * 1e3:.3f} ms")
-        lines.append(f"  wall time {self.wall_time_s:.3f} s, {self.integrator_calls} integrator calls")
-        lines += [f"  warning: {w}" for w in summarise(self.warnings)]
-        return "\n".join(lines)
-
-    def to_json(self) -> dict:
-        d = self.summary()
-        d["events"] = self.events.to_dict()
-        return d
-
-
-def classify(events: EventTable, step: float, moving_fraction: float) -> str:
-    """The run's regime.
-
-    ``creep`` when the block is moving more than half the time after its first slip;
-    else ``stepping`` when the median slip (phases moving at least 0.1 step) is shorter
-    than two puller steps (the block follows the puller step by step); else
-    ``stick-slip``; ``no-slip`` without slips.
-    """
-    if moving_fraction > 0.5:
-        return "creep"
-    slips = np.abs(events["slip_length_m"]) if len(events) else np.array([])
-    slips = slips[slips >= MIN_SLIP_STEPS * step]
-    if not slips.size:
-        return "no-slip"
-    if np.median(slips) < 2 * step:
-        return "stepping"
-    return "stick-slip"
 
 
 # ----------------------------------------------------------------------------- engine
@@ -529,7 +122,7 @@ class _Runner:
         self.sc = self.law.state_scale
         self.calls = 0
         self.warnings: list[str] = []
-        self.phases: list[_Phase] = []
+        self.phases: list[MovingPhase] = []
         self._cache: dict = {}
         self.rhs = slip_rhs(model)
 
@@ -593,11 +186,8 @@ class _Runner:
         stop is read from the frozen state (rosenbrock) or bracketed on the outputs and
         located (idas). Returns (t, x, state, n_done, info).
         """
-        plugin = self.opts.integrator
         s = direction
-        X = np.zeros(N_STATES)
-        X[0], X[2], X[3] = x0 / LENGTH_UNIT, z0 / self.sc, 1.0
-        X[4] = 1.0 if self.v_stick <= 0 else 0.0
+        X = self._rest_state(x0, z0)
         t = t0
         rec_t, rec_X = [t0], [X.copy()]
         reversals, steps_crossed, M = 0, 0, 1
@@ -605,36 +195,9 @@ class _Runner:
         while True:
             if t >= end - 1e-12 / self.fp:
                 return self._finish(t, X, n_done, s, rec_t, rec_X, reversals, steps_crossed, held=False)
-            aligned = abs(t - self.step_time(n_done)) <= 1e-9 / self.fp
-            if aligned:
-                M_eff = max(1, min(M, self.c.n_steps - n_done + 1))
-                H = M_eff / self.fp
-                ts = t + H * _grid_of(M_eff)
-                xp = (n_done + np.arange(M_eff)) * self.dx / LENGTH_UNIT
-                F = self.integrator(plugin, M_eff)
-            else:  # restart between steps: up to the next step
-                M_eff = 1
-                t_next = self.step_time(n_done + 1) if n_done < self.c.n_steps else end
-                H = t_next - t
-                ts = t + H * _GRID
-                xp = np.array([n_done * self.dx / LENGTH_UNIT])
-                F = self.integrator(plugin, 1)
-            K = len(_GRID)
-            u = np.repeat(xp, K)[None, :]
-            try:
-                out = np.array(F(x0=X, p=self.p(s, H), u=u)["xf"])
-            except RuntimeError:
-                if plugin != "idas":
-                    raise
-                # IDACalcIC occasionally fails in a creep tail; the state is a valid
-                # initial condition of the ODE as it is, so retry without it
-                F = self.integrator(plugin, M_eff if aligned else 1, None, calc_ic=False)
-                out = np.array(F(x0=X, p=self.p(s, H), u=u)["xf"])
-            self.calls += 1
-            if not np.all(np.isfinite(out)):
-                raise FloatingPointError(f"integration failed at t = {t:.6g} s")
-            xp_out = np.repeat(xp, K)
-            stop = self._find_stop(t, X, ts, out, s, xp_out)
+            M_eff, H, ts, xp = self._window(t, n_done, M)
+            out = self._integrate(t, X, s, M_eff, H, xp)
+            stop = self._find_stop(t, X, ts, out, s, np.repeat(xp, len(_GRID)))
             if stop is None:
                 self._record(rec_t, rec_X, ts, out)
                 t, X = ts[-1], out[:, -1].copy()
@@ -671,6 +234,53 @@ class _Runner:
             if reversals > 100:
                 self.warnings.append(f"t = {t:.6g} s: more than 100 reversals in one phase; phase cut")
                 return self._finish(t, X, n_done, s, rec_t, rec_X, reversals, steps_crossed, held=True)
+
+    def _rest_state(self, x0: float, z0: float) -> np.ndarray:
+        """The scaled state of a block at rest at x0 with contact state z0; the stick
+        threshold is armed from the start only when there is none (v_stick ≤ 0)."""
+        X = np.zeros(N_STATES)
+        X[0], X[2], X[3] = x0 / LENGTH_UNIT, z0 / self.sc, 1.0
+        X[4] = 1.0 if self.v_stick <= 0 else 0.0
+        return X
+
+    def _window(self, t: float, n_done: int, M: int):
+        """The next integration window from t: (step intervals M_eff, duration H, output
+        times, puller position per interval in µm). From a step it spans up to M whole
+        step intervals; from between two steps (after a stop) it ends at the next step."""
+        if abs(t - self.step_time(n_done)) <= 1e-9 / self.fp:
+            M_eff = max(1, min(M, self.c.n_steps - n_done + 1))
+            H = M_eff / self.fp
+            ts = t + H * _grid_of(M_eff)
+            xp = (n_done + np.arange(M_eff)) * self.dx / LENGTH_UNIT
+        else:
+            M_eff = 1
+            t_next = self.step_time(n_done + 1) if n_done < self.c.n_steps else self.c.end_time
+            H = t_next - t
+            ts = t + H * _GRID
+            xp = np.array([n_done * self.dx / LENGTH_UNIT])
+        return M_eff, H, ts, xp
+
+    def _integrate(self, t: float, X: np.ndarray, s: float, M_eff: int, H: float, xp: np.ndarray) -> np.ndarray:
+        """The outputs of one window integrated from X, the puller position a control per
+        step interval; raises FloatingPointError if they are not finite.
+
+        IDACalcIC occasionally fails in a creep tail; the state is a valid initial
+        condition of the ODE as it is, so IDAS then retries without it.
+        """
+        plugin = self.opts.integrator
+        F = self.integrator(plugin, M_eff)
+        u = np.repeat(xp, len(_GRID))[None, :]
+        try:
+            out = np.array(F(x0=X, p=self.p(s, H), u=u)["xf"])
+        except RuntimeError:
+            if plugin != "idas":
+                raise
+            F = self.integrator(plugin, M_eff, None, calc_ic=False)
+            out = np.array(F(x0=X, p=self.p(s, H), u=u)["xf"])
+        self.calls += 1
+        if not np.all(np.isfinite(out)):
+            raise FloatingPointError(f"integration failed at t = {t:.6g} s")
+        return out
 
     def _record(self, rec_t, rec_X, ts, out):
         if len(ts):
@@ -822,7 +432,7 @@ class _Runner:
         if self.opts.record and rec_t:
             arr = np.array(rec_X).reshape(len(rec_t), -1)
             self.phases.append(
-                _Phase(np.array(rec_t), arr[:, 0] * LENGTH_UNIT, arr[:, 1] * SPEED_UNIT, arr[:, 2] * self.sc)
+                MovingPhase(np.array(rec_t), arr[:, 0] * LENGTH_UNIT, arr[:, 1] * SPEED_UNIT, arr[:, 2] * self.sc)
             )
         info = dict(vmax=float(X[7]) * SPEED_UNIT, reversals=reversals, steps_crossed=steps_crossed, held=held)
         return t, X[0] * LENGTH_UNIT, X[2] * self.sc, n_done, info
@@ -891,7 +501,6 @@ def simulate_run(
         log.warning(w)
     return res
 
-
 def simulate(
     coating: str = "FOTAS",
     *,
@@ -947,40 +556,13 @@ def simulate(
     -------
     SimulationResult
     """
-    if (normal_load_uN is None) == (block_voltage_V is None):
-        raise ParameterError("give exactly one of normal_load_uN or block_voltage_V")
-    if normal_load_uN is not None:
-        nb = float(normal_load_uN)
-        if not math.isfinite(nb) or nb <= 0:
-            raise ParameterError(f"normal_load_uN = {normal_load_uN!r}: must be > 0 and finite")
-        Nb = nb * 1e-6
-    else:
-        Nb = normal_load_from_voltage(block_voltage_V)
+    Nb = normal_load_N(normal_load_uN, block_voltage_V)
     if check_platform:
-        for name, value in (("normal_load_uN", Nb * 1e6), ("spring_constant_N_per_m", spring_constant_N_per_m),
-                            ("step_frequency_Hz", step_frequency_Hz)):
-            if (problem := platform_problem(name, float(value))) is not None:
-                raise ParameterError(problem)
-    overrides = dict(params or {})
-    if stick_speed_m_per_s is not None:
-        overrides["v_stick"] = stick_speed_m_per_s
-    if check_platform:
-        check_parameters(overrides, "params: ")
+        check_platform_conditions(Nb, spring_constant_N_per_m, step_frequency_Hz)
+    overrides = parameter_overrides(params, stick_speed_m_per_s, check_platform)
     model = Model(get_law(law))
     values = parameter_set(coating, overrides)
-    step = values["step_size"] * values["step_scale"]
-    if (travel_um is None) == (n_steps is None):
-        raise ParameterError("give exactly one of travel_um or n_steps")
-    if travel_um is not None:
-        tr = float(travel_um)
-        if not math.isfinite(tr) or tr <= 0:
-            raise ParameterError(f"travel_um = {travel_um!r}: must be > 0 and finite")
-        if tr * 1e-6 > MAX_TRAVEL_M * (1 + 1e-9):
-            warnings.warn(
-                f"travel_um = {tr:g} exceeds the nanotractor's {MAX_TRAVEL_M * 1e6:g} µm range",
-                stacklevel=2,
-            )
-        n_steps = max(1, int(round(tr * 1e-6 / step)))
+    n_steps = step_count(travel_um, n_steps, values["step_size"] * values["step_scale"])
     cond = RunConditions(
         spring_constant=float(spring_constant_N_per_m), normal_load=Nb,
         step_frequency=float(step_frequency_Hz), n_steps=int(n_steps),
@@ -990,3 +572,4 @@ def simulate(
     res = simulate_run(model, values, cond, options)
     res.coating = coating.upper()
     return res
+
