@@ -10,6 +10,12 @@ constraints
 spring_set
     The fewest springs covering a load range for every μ, robust to the etch bias
     (CasADi + Ipopt), judged side by side with the paper's set.
+spring_coverage
+    A spring set judged against a load range: margins, gaps, the pointwise Table I check.
+spring_maximin
+    The maximin NLP of one assignment of springs to suspensions (Ipopt).
+spring_set_result
+    The designed set beside the paper's, with its report and JSON.
 ranges
     Operating ranges of a spring: the usable (Nb, fp) points under Table I, the simulated
     regime and the camera (:func:`operating_ranges`).
@@ -17,7 +23,15 @@ plots
     Fig. 3 (the Table I region) with spring sets drawn on it; operating-range maps.
 experiment
     Experiment plans that make the friction parameters identifiable (D/A/E-optimal
-    choice of runs), verified by Monte Carlo fits.
+    choice of runs).
+candidates
+    The runs a plan chooses from, and the paper's conditions as the reference plan.
+information
+    The Fisher information of one run, from the identification's own NLP.
+experiment_plan
+    A plan beside the reference, with its report, JSON and plot.
+verification
+    Monte Carlo fits of a plan and its reference: the measured spread of the estimates.
 cli
     ``nanofrictor-design springs|ranges|experiment ...`` (or ``python -m design ...``).
 """

@@ -325,37 +325,72 @@ def operating_ranges(
         For a non-positive or non-finite k, load, fp or travel, a k outside Table I, an
         unknown coating or a bad rule value; the message names the parameter and the rule.
     """
+    k = _checked_spring_constant(spring_constant_N_per_m)
+    v_stick = _checked_stick_speed(coating, stick_speed_m_per_s)
+    rules = UsabilityRules(min_slip_m, min_slips, max_frame_rate_Hz, frames_per_step)
+    travel = _checked_travel(travel_um)
+
+    lo, hi = (float(x) * 1e6 for x in tc.allowed_load_range(k))
+    loads = _grid(loads_uN, np.geomspace(lo, hi, DEFAULT_N_LOADS), "Nb", "µN")
+    fps = _grid(fps_Hz, DEFAULT_STEP_FREQUENCIES_HZ, "fp", "Hz")
+    # The camera rule needs no simulation: those frequencies are never run.
+    camera_ok = fps * rules.frames_per_step <= rules.max_frame_rate_Hz * (1 + 1e-12)
+    regimes, slip, count, errors = _simulate_grid(coating, k, loads, fps, camera_ok, travel, v_stick, progress)
+    failed = np.empty(regimes.shape, dtype=object)
+    for i, nb in enumerate(loads):
+        for j, fp in enumerate(fps):
+            failed[i, j] = _point_failures(nb, fp, (lo, hi), camera_ok[j], regimes[i, j], slip[i, j],
+                                           count[i, j], rules, travel)
+
+    return OperatingRanges(
+        coating=coating.upper(), spring_constant_N_per_m=k, stick_speed_m_per_s=v_stick,
+        travel_um=travel, rules=rules, normal_load_range_uN=(lo, hi), normal_loads_uN=loads,
+        step_frequencies_Hz=fps, regimes=regimes.astype(str), failed=failed, mean_slip_um=slip,
+        n_slips=count, errors=errors,
+    )
+
+
+def _checked_spring_constant(spring_constant_N_per_m: float) -> float:
+    """k (N/m) as a float; refused unless positive, finite and inside Table I's k rows."""
     k = _positive("k", spring_constant_N_per_m, "N/m", "the spring constant must be")
     if not (tc.K_MIN.satisfied(0.0, k, 0.5) and tc.K_MAX.satisfied(0.0, k, 0.5)):
         raise ValueError(
             f"k = {k:g} N/m: Table I allows {tc.K_MIN.name} "
             f"({tc.K_MIN.reason}) and {tc.K_MAX.name} ({tc.K_MAX.reason})"
         )
-    # Bad coating or stick speed must fail here: inside the grid every run would fail alone.
+    return k
+
+
+def _checked_stick_speed(coating: str, stick_speed_m_per_s: float) -> float:
+    """The stick speed as a float, checked with the coating before any simulation: inside
+    the grid a bad value would fail every run alone."""
     v_stick = float(stick_speed_m_per_s)
     if not math.isfinite(v_stick):
         raise ValueError(f"stick_speed_m_per_s = {stick_speed_m_per_s!r}: must be finite")
     parameter_set(coating, {"v_stick": v_stick})
-    rules = UsabilityRules(min_slip_m, min_slips, max_frame_rate_Hz, frames_per_step)
+    return v_stick
+
+
+def _checked_travel(travel_um: float) -> float:
+    """The puller travel (µm) as a float; refused unless positive and within Table I's travel."""
     travel = _positive("travel_um", travel_um, "µm", "the travel must be")
     if travel * 1e-6 > tc.PULLER_TRAVEL.bound * (1 + tc.RTOL):
         raise ValueError(
             f"travel_um = {travel:g} µm: must be <= "
             f"{tc.PULLER_TRAVEL.bound * 1e6:g} µm ({tc.PULLER_TRAVEL.reason})"
         )
+    return travel
 
-    lo, hi = (float(x) * 1e6 for x in tc.allowed_load_range(k))
-    loads = _grid(loads_uN, np.geomspace(lo, hi, DEFAULT_N_LOADS), "Nb", "µN")
-    fps = _grid(fps_Hz, DEFAULT_STEP_FREQUENCIES_HZ, "fp", "Hz")
+
+def _simulate_grid(coating: str, k: float, loads: np.ndarray, fps: np.ndarray, camera_ok: np.ndarray,
+                   travel: float, v_stick: float, progress) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
+    """Regimes, mean slips (µm), slip counts and simulation errors over the grid: one run per
+    point whose fp the camera can follow; the others stay ``not simulated``."""
     shape = (loads.size, fps.size)
     regimes = np.full(shape, NOT_SIMULATED, dtype=object)
-    failed = np.empty(shape, dtype=object)  # every cell is set below
     slip = np.full(shape, np.nan)
     count = np.zeros(shape, int)
     errors: list[str] = []
-
-    # The camera rule needs no simulation: those frequencies are never run.
-    camera_ok = fps * rules.frames_per_step <= rules.max_frame_rate_Hz * (1 + 1e-12)
     if camera_ok.any():
         # Each run covers the whole travel, so the slip count is counted, not extrapolated:
         # a short run scaled up gave 19.7 slips against 20 simulated over 100 µm at
@@ -367,38 +402,32 @@ def operating_ranges(
         slip[:, camera_ok] = m.mean_slip_um
         count[:, camera_ok] = m.n_slips
         errors += m.errors
+    return regimes, slip, count, errors
 
-    for i, nb in enumerate(loads):
-        in_table = lo * (1 - tc.RTOL) <= nb <= hi * (1 + tc.RTOL)
-        for j, fp in enumerate(fps):
-            f: list[tuple[str, str]] = []
-            if not in_table:
-                f.append(("table_i", f"Table I: Nb = {nb:.3g} µN outside {lo:.3g}-{hi:.3g} µN"))
-            if not camera_ok[j]:
-                f.append(("camera", (f"camera: {rules.frames_per_step:g} frames/step needs "
-                                     f"{fp * rules.frames_per_step:g} fps > "
-                                     f"{rules.max_frame_rate_Hz:g}")))
-                failed[i, j] = tuple(f)
-                continue
-            reg = regimes[i, j]
-            if reg != "stick-slip":
-                what = {"no-slip": f"no slip in {travel:g} µm",
-                        "error": "simulation failed (see errors)"}.get(reg, reg)
-                f.append(("regime", what))
-            # A creep run's "slips" are long creeping phases: length and count say nothing.
-            if reg in ("stick-slip", "stepping"):
-                if slip[i, j] * 1e-6 < rules.min_slip_m:
-                    f.append(("slip_length",
-                              f"slips {slip[i, j]:.3g} µm < {rules.min_slip_m * 1e6:g} µm"))
-                if count[i, j] < rules.min_slips:
-                    n = count[i, j]
-                    f.append(("slip_count",
-                              f"only {n} slip{'' if n == 1 else 's'} in {travel:g} µm"))
-            failed[i, j] = tuple(f)
 
-    return OperatingRanges(
-        coating=coating.upper(), spring_constant_N_per_m=k, stick_speed_m_per_s=v_stick,
-        travel_um=travel, rules=rules, normal_load_range_uN=(lo, hi), normal_loads_uN=loads,
-        step_frequencies_Hz=fps, regimes=regimes.astype(str), failed=failed, mean_slip_um=slip,
-        n_slips=count, errors=errors,
-    )
+def _point_failures(nb: float, fp: float, table_range_uN: tuple[float, float], camera_ok: bool, regime: str,
+                    slip_um: float, n_slips: int, rules: UsabilityRules, travel: float) -> tuple:
+    """The rules grid point (Nb, fp) fails, as (rule, message) pairs; empty when usable. A
+    point the camera cannot follow was not simulated, so only Table I is judged beside it."""
+    lo, hi = table_range_uN
+    f: list[tuple[str, str]] = []
+    if not (lo * (1 - tc.RTOL) <= nb <= hi * (1 + tc.RTOL)):
+        f.append(("table_i", f"Table I: Nb = {nb:.3g} µN outside {lo:.3g}-{hi:.3g} µN"))
+    if not camera_ok:
+        f.append(("camera", (f"camera: {rules.frames_per_step:g} frames/step needs "
+                             f"{fp * rules.frames_per_step:g} fps > "
+                             f"{rules.max_frame_rate_Hz:g}")))
+        return tuple(f)
+    if regime != "stick-slip":
+        what = {"no-slip": f"no slip in {travel:g} µm",
+                "error": "simulation failed (see errors)"}.get(regime, regime)
+        f.append(("regime", what))
+    # A creep run's "slips" are long creeping phases: length and count say nothing.
+    if regime in ("stick-slip", "stepping"):
+        if slip_um * 1e-6 < rules.min_slip_m:
+            f.append(("slip_length",
+                      f"slips {slip_um:.3g} µm < {rules.min_slip_m * 1e6:g} µm"))
+        if n_slips < rules.min_slips:
+            f.append(("slip_count",
+                      f"only {n_slips} slip{'' if n_slips == 1 else 's'} in {travel:g} µm"))
+    return tuple(f)

@@ -53,30 +53,27 @@ there and maximises the worst of the other margins (a lexicographic maximin), so
 limit at one end does not leave the rest unbalanced. The chosen set is then checked point
 by point against every row of Table I at both bias extremes (:meth:`SpringSet.verify`); a
 set that fails the check is not accepted.
+
+Layout: the set's measures, pointwise check, JSON and report lines are
+:class:`~design.spring_coverage.SpringSet` (:mod:`design.spring_coverage`); the NLP of one
+suspension assignment is :mod:`design.spring_maximin`; the result and its report are
+:mod:`design.spring_set_result`. Their public names are importable from here.
 """
 
 from __future__ import annotations
 
-import functools
 import itertools
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 
 from . import constraints as tc
-from .springs import (
-    ETCH_BIAS_UM,
-    LONG_SUSPENSION,
-    PAPER_SPRING_CONSTANTS,
-    PAPER_SUSPENSION,
-    SpringDesign,
-    Suspension,
-    paper_springs,
-)
+from .spring_coverage import SpringSet, format_load_range_uN, paper_spring_set, to_uN
+from .spring_maximin import COVER_TOL, MaximinSolution, admissible_widths, maximin_starts, solve_assignment
+from .spring_set_result import Attempt, SpringSetResult
+from .springs import ETCH_BIAS_UM, LONG_SUSPENSION, PAPER_SUSPENSION, SpringDesign, Suspension
 
 __all__ = [
     "DEFAULT_SUSPENSIONS",
@@ -97,31 +94,13 @@ DEFAULT_SUSPENSIONS: tuple[Suspension, ...] = (PAPER_SUSPENSION, LONG_SUSPENSION
 MAX_SPRINGS = 8
 """Largest number of springs the optimiser tries."""
 
-_COVER_TOL = 1e-9  # a margin >= -_COVER_TOL counts as covering (Table I limits are closed)
-_IPOPT_OPTS = {
-    "ipopt.print_level": 0,
-    "ipopt.sb": "yes",
-    "print_time": False,
-    "ipopt.tol": 1e-10,
-    "ipopt.constr_viol_tol": 1e-11,
-    "ipopt.max_iter": 200,
-    "ipopt.bound_relax_factor": 0.0,
-}
-
 
 class InfeasibleDesignError(ValueError):
     """No spring set meets the request; the message says which limit stops it."""
 
 
-def _uN(x: float) -> float:
-    return x * 1e6
-
-
-def _fmt_range_uN(lo: float, hi: float) -> str:
-    return f"{_uN(lo):.4g}-{_uN(hi):.4g} µN"
-
-
 def _validate_load_range_uN(load_range_uN) -> tuple[float, float]:
+    """The requested (low, high) in µN as loads in N; refused unless 0 < low < high."""
     try:
         lo, hi = (float(v) for v in load_range_uN)
     except (TypeError, ValueError):
@@ -133,287 +112,6 @@ def _validate_load_range_uN(load_range_uN) -> tuple[float, float]:
             f"load_range_uN = ({lo:g}, {hi:g}): must satisfy 0 < low < high (µN)"
         )
     return lo * 1e-6, hi * 1e-6
-
-
-# --------------------------------------------------------------------------------------
-# A spring set and its measures
-# --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class SpringSet:
-    """Springs judged against a requested load range at an etch-bias uncertainty.
-
-    Parameters
-    ----------
-    springs : sequence of SpringDesign
-        The springs; stored sorted by nominal k.
-    load_range : (float, float)
-        Requested normal-load range (N).
-    etch_bias_um : float
-        Uncertainty b of the edge bias per edge (µm); realised widths ``w ± 2b``.
-    label : str
-        Name for reports and legends.
-    """
-
-    springs: tuple[SpringDesign, ...]
-    load_range: tuple[float, float]
-    etch_bias_um: float = ETCH_BIAS_UM
-    label: str = ""
-
-    def __post_init__(self) -> None:
-        springs = tuple(self.springs)
-        if not springs or not all(isinstance(s, SpringDesign) for s in springs):
-            raise ValueError("SpringSet.springs: must be a non-empty sequence of SpringDesign")
-        object.__setattr__(self, "springs", tuple(sorted(springs, key=lambda s: s.spring_constant)))
-        lo, hi = (float(v) for v in self.load_range)
-        if not (0 < lo < hi) or not math.isfinite(hi):
-            raise ValueError(
-                f"SpringSet.load_range = {self.load_range!r}: must be 0 < low < high (N)"
-            )
-        object.__setattr__(self, "load_range", (lo, hi))
-        b = float(self.etch_bias_um)
-        if not math.isfinite(b) or b < 0:
-            raise ValueError(f"SpringSet.etch_bias_um = {self.etch_bias_um!r}: must be >= 0")
-        object.__setattr__(self, "etch_bias_um", b)
-        for s in springs:
-            s.spring_constant_range(b)  # raises if a realisation has no width
-
-    # -- per spring -------------------------------------------------------------------
-    @property
-    def n(self) -> int:
-        return len(self.springs)
-
-    @property
-    def spring_constants(self) -> np.ndarray:
-        """Nominal k (N/m)."""
-        return np.array([s.spring_constant for s in self.springs])
-
-    @property
-    def spring_constant_ranges(self) -> tuple[np.ndarray, np.ndarray]:
-        """(k_soft, k_stiff) arrays (N/m) at the realised widths ``w ∓ 2b``."""
-        pairs = [s.spring_constant_range(self.etch_bias_um) for s in self.springs]
-        return np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
-
-    @property
-    def windows(self) -> tuple[np.ndarray, np.ndarray]:
-        """Elongation windows (N): loads with 90 nm ≤ e ≤ 100 µm for all μ and realisations."""
-        return tc.elongation_window(*self.spring_constant_ranges)
-
-    @property
-    def load_ranges(self) -> tuple[np.ndarray, np.ndarray]:
-        """Allowed Nb ranges (N) under every row of Table I at the worst-case bias (NaN: none)."""
-        lo, hi = tc.robust_load_range(*self.spring_constant_ranges)
-        return np.atleast_1d(lo), np.atleast_1d(hi)
-
-    # -- set measures -----------------------------------------------------------------
-    @property
-    def margins(self) -> np.ndarray:
-        """m_0..m_n (natural-log ratios), see the module docstring."""
-        lo, hi = self.windows
-        L_lo, L_hi = self.load_range
-        return np.concatenate(
-            [[math.log(L_lo / lo[0])], np.log(hi[:-1] / lo[1:]), [math.log(hi[-1] / L_hi)]]
-        )
-
-    @property
-    def margin_labels(self) -> list[str]:
-        return ["low end"] + [f"{i}|{i + 1}" for i in range(1, self.n)] + ["high end"]
-
-    @property
-    def worst_margin(self) -> float:
-        """min over all margins (ends and overlaps); ≥ 0 iff the set covers the range."""
-        return float(np.min(self.margins))
-
-    @property
-    def worst_overlap_margin(self) -> float | None:
-        """min over the neighbour overlaps m_1..m_{n−1}; None for a single spring."""
-        return float(np.min(self.margins[1:-1])) if self.n > 1 else None
-
-    @property
-    def covered_load_range(self) -> tuple[float, float]:
-        """(lowest floor, highest ceiling) of the springs' allowed ranges (N); see :attr:`gaps`."""
-        lo, hi = self.load_ranges
-        ok = np.isfinite(lo)
-        if not ok.any():
-            return (math.nan, math.nan)
-        return float(lo[ok].min()), float(hi[ok].max())
-
-    def _union(self) -> list[tuple[float, float]]:
-        lo, hi = self.load_ranges
-        ivs = sorted((a, b) for a, b in zip(lo, hi) if np.isfinite(a))
-        out: list[list[float]] = []
-        for a, b in ivs:
-            if out and a <= out[-1][1] * (1 + tc.RTOL):
-                out[-1][1] = max(out[-1][1], b)
-            else:
-                out.append([a, b])
-        return [(a, b) for a, b in out]
-
-    @property
-    def gaps(self) -> list[tuple[float, float]]:
-        """Loads (N) between the lowest floor and highest ceiling that no spring allows."""
-        u = self._union()
-        return [(u[i][1], u[i + 1][0]) for i in range(len(u) - 1)]
-
-    @property
-    def uncovered(self) -> list[tuple[float, float]]:
-        """Parts (N) of the requested range that no spring allows (ends included)."""
-        L_lo, L_hi = self.load_range
-        out, x = [], L_lo
-        for a, b in self._union():
-            if b <= x:
-                continue
-            if a > x * (1 + tc.RTOL):
-                out.append((x, min(a, L_hi)))
-            x = max(x, b)
-            if x >= L_hi:
-                break
-        if x < L_hi * (1 - tc.RTOL):
-            out.append((x, L_hi))
-        return [(a, b) for a, b in out if b > a * (1 + tc.RTOL)]
-
-    @property
-    def covers(self) -> bool:
-        """True when every requested load is allowed by some spring at the worst-case bias."""
-        return not self.uncovered
-
-    def verify(self, n_loads: int = 400, n_mu: int = 9) -> list[str]:
-        """Check the set point by point against every row of Table I; return the failures.
-
-        On ``n_loads`` log-spaced loads in the requested range (plus every range end), for
-        every spring whose reported allowed range contains the load, evaluate every
-        constraint of :data:`design.constraints.TABLE_I` at both bias extremes (k_soft and
-        k_stiff) and ``n_mu`` values of μ in [0.1, 0.9]. Independent of the margins.
-
-        Returns
-        -------
-        list of str
-            Empty when the set covers the range; otherwise one message per failure
-            (uncovered load, or the first violated rule with its point).
-        """
-        lo, hi = self.load_ranges
-        ks, kt = self.spring_constant_ranges
-        L_lo, L_hi = self.load_range
-        ends = np.concatenate([lo[np.isfinite(lo)], hi[np.isfinite(hi)]])
-        loads = np.concatenate([np.geomspace(L_lo, L_hi, n_loads), ends])
-        loads = np.unique(loads[(loads >= L_lo) & (loads <= L_hi)])
-        mus = np.linspace(tc.MU_MIN.bound, tc.MU_MAX.bound, n_mu)
-        failures: list[str] = []
-        for nb in loads:
-            inside = np.flatnonzero(
-                np.isfinite(lo) & (lo <= nb * (1 + tc.RTOL)) & (nb <= hi * (1 + tc.RTOL))
-            )
-            if inside.size == 0:
-                failures.append(f"Nb = {tc.format_load(nb)} is allowed by no spring")
-                continue
-            for i in inside:
-                k = np.array([ks[i], kt[i]])[:, None]
-                v = tc.check(nb, k, mus[None, :])
-                if v:
-                    failures.append(
-                        f"spring {i + 1} (w = {self.springs[i].width_um:.4g} µm): {v[0].message}"
-                    )
-        return failures
-
-    # -- output -----------------------------------------------------------------------
-    def spring_json(self) -> list[dict]:
-        ks, kt = self.spring_constant_ranges
-        lo, hi = self.load_ranges
-        return [
-            {
-                "width_um": s.width_um,
-                "drawn_width_um": s.drawn_width_um,
-                "spring_constant_N_per_m": s.spring_constant,
-                "spring_constant_range_N_per_m": [float(ks[i]), float(kt[i])],
-                "normal_load_range_uN": (
-                    [_uN(lo[i]), _uN(hi[i])] if np.isfinite(lo[i]) else None
-                ),
-                "suspension": s.suspension.to_json(),
-            }
-            for i, s in enumerate(self.springs)
-        ]
-
-    def to_json(self) -> dict:
-        """Springs, coverage and margins as a JSON-ready dict (loads in µN)."""
-        c_lo, c_hi = self.covered_load_range
-        wom = self.worst_overlap_margin
-        return {
-            "springs": self.spring_json(),
-            "covered_load_range_uN": [_uN(c_lo), _uN(c_hi)] if math.isfinite(c_lo) else None,
-            "covers_load_range": self.covers,
-            "worst_margin": self.worst_margin,
-            "worst_overlap_margin": wom,
-            "margins": [
-                {"between": lab, "value": float(m)}
-                for lab, m in zip(self.margin_labels, self.margins)
-            ],
-            "gaps_uN": [[_uN(a), _uN(b)] for a, b in self.gaps],
-            "uncovered_uN": [[_uN(a), _uN(b)] for a, b in self.uncovered],
-        }
-
-    def report_lines(self) -> list[str]:
-        ks, kt = self.spring_constant_ranges
-        lo, hi = self.load_ranges
-        lines = [
-            f"  {'#':>2}  {'suspension':<16} {'w (µm)':>7} {'drawn':>7} {'k (N/m)':>9} "
-            f"{'k range (N/m)':>17}  {'allowed Nb (µN)':>18}"
-        ]
-        for i, s in enumerate(self.springs):
-            rng = f"{_uN(lo[i]):.4g}-{_uN(hi[i]):.4g}" if np.isfinite(lo[i]) else "none"
-            lines.append(
-                f"  {i + 1:>2}  {s.suspension.name + f' ({s.suspension.length_um:g} µm)':<16} "
-                f"{s.width_um:7.3f} {s.drawn_width_um:7.3f} {s.spring_constant:9.4g} "
-                f"{f'{ks[i]:.3g}-{kt[i]:.3g}':>17}  {rng:>18}"
-            )
-        lines.append(
-            "  margins ln(ratio): "
-            + ", ".join(f"{lab} {m:+.3f}" for lab, m in zip(self.margin_labels, self.margins))
-        )
-        worst = int(np.argmin(self.margins))
-        wom = self.worst_overlap_margin
-        lines.append(
-            f"  worst margin {self.worst_margin:+.3f} ({self.margin_labels[worst]})"
-            + (f"; worst overlap {wom:+.3f}" if wom is not None else "")
-        )
-        c_lo, c_hi = self.covered_load_range
-        cov = f"  allowed loads span {_fmt_range_uN(c_lo, c_hi)}"
-        if self.gaps:
-            cov += "; gaps " + ", ".join(_fmt_range_uN(a, b) for a, b in self.gaps)
-        lines.append(cov)
-        if self.uncovered:
-            lines.append(
-                "  does NOT cover "
-                + ", ".join(_fmt_range_uN(a, b) for a, b in self.uncovered)
-                + " of the requested range"
-            )
-        else:
-            lines.append(f"  covers the requested {_fmt_range_uN(*self.load_range)}")
-        return lines
-
-
-def paper_spring_set(
-    load_range: tuple[float, float], etch_bias_um: float = ETCH_BIAS_UM
-) -> SpringSet:
-    """The paper's four springs (0.028, 0.24, 2.13, 20.3 N/m) as a :class:`SpringSet`.
-
-    Parameters
-    ----------
-    load_range : (float, float)
-        Requested range (N) to judge them against.
-    etch_bias_um : float
-        Etch-bias uncertainty per edge (µm).
-    """
-    return SpringSet(paper_springs(), load_range, etch_bias_um, label="paper (Table I, Fig. 3)")
-
-
-# --------------------------------------------------------------------------------------
-# Limits of what any set can cover
-# --------------------------------------------------------------------------------------
-def _admissible_widths(s: Suspension, b: float) -> tuple[float, float]:
-    """Nominal-width interval (µm) of ``s`` whose realisations ``w ± 2b`` keep k in Table I."""
-    c = s.coefficient
-    lb = max(s.min_width_um, (tc.K_MIN.bound / c) ** (1 / 3) + 2 * b)
-    ub = min(s.max_width_um, (tc.K_MAX.bound / c) ** (1 / 3) - 2 * b)
-    return lb, ub
 
 
 def coverable_load_range(
@@ -434,7 +132,7 @@ def coverable_load_range(
     b = float(etch_bias_um)
     best_lo, why_lo, best_hi, why_hi = math.inf, "", 0.0, ""
     for s in suspensions:
-        lb, ub = _admissible_widths(s, b)
+        lb, ub = admissible_widths(s, b)
         if lb > ub:
             continue
         k_soft_lb, k_stiff_lb = s.spring_constant_range(lb, b)
@@ -460,289 +158,6 @@ def coverable_load_range(
             "no suspension admits a width whose realisations keep 0.01 < k < 100 N/m"
         )
     return (best_lo, best_hi), (why_lo, why_hi)
-
-
-# --------------------------------------------------------------------------------------
-# The NLP (one per number of springs, cached)
-# --------------------------------------------------------------------------------------
-_LOG_LO_PER_K = math.log(tc.ELONGATION_RESOLUTION.bound / tc.MU_MIN.bound)  # ln(lo/k_stiff), ln m
-_LOG_HI_PER_K = math.log(tc.PULLER_TRAVEL.bound / tc.MU_MAX.bound)  # ln(hi/k_soft), ln m
-
-
-@functools.cache
-def _maximin_solver(n: int) -> ca.Function:
-    """Ipopt solver: maximise t s.t. m_j ≥ a_j·t + (1 − a_j)·floor_j, nominal k ordered.
-
-    x = [u (n): ln(w/µm); t]; p = [ln c (n); 2b (µm); ln L_lo; ln L_hi; a (n+1); floor (n+1)].
-    """
-    u = ca.SX.sym("u", n)
-    t = ca.SX.sym("t")
-    log_c = ca.SX.sym("log_c", n)
-    two_b = ca.SX.sym("two_b")
-    log_lo_req = ca.SX.sym("log_lo_req")
-    log_hi_req = ca.SX.sym("log_hi_req")
-    active = ca.SX.sym("active", n + 1)
-    floor = ca.SX.sym("floor", n + 1)
-    w = ca.exp(u)
-    log_lo = log_c + 3 * ca.log(w + two_b) + _LOG_LO_PER_K  # floor: stiffest realisation
-    log_hi = log_c + 3 * ca.log(w - two_b) + _LOG_HI_PER_K  # ceiling: softest realisation
-    inner = [log_hi[i] - log_lo[i + 1] for i in range(n - 1)]
-    m = ca.vertcat(log_lo_req - log_lo[0], *inner, log_hi[n - 1] - log_hi_req)
-    g = [m - active * t - (1 - active) * floor]
-    if n > 1:
-        log_k = log_c + 3 * u
-        g.append(ca.vertcat(*[log_k[i + 1] - log_k[i] for i in range(n - 1)]))
-    nlp = {
-        "x": ca.vertcat(u, t),
-        "p": ca.vertcat(log_c, two_b, log_lo_req, log_hi_req, active, floor),
-        "f": -t,
-        "g": ca.vertcat(*g),
-    }
-    return ca.nlpsol(f"spring_set_{n}", "ipopt", nlp, _IPOPT_OPTS)
-
-
-def _margins_np(log_c, u, b, log_lo_req, log_hi_req) -> np.ndarray:
-    w = np.exp(u)
-    log_lo = log_c + 3 * np.log(w + 2 * b) + _LOG_LO_PER_K
-    log_hi = log_c + 3 * np.log(w - 2 * b) + _LOG_HI_PER_K
-    return np.concatenate(
-        [[log_lo_req - log_lo[0]], log_hi[:-1] - log_lo[1:], [log_hi[-1] - log_hi_req]]
-    )
-
-
-@dataclass(frozen=True)
-class _Candidate:
-    assignment: tuple[Suspension, ...]
-    widths_um: tuple[float, ...]
-    worst_margin: float  # min over all margins (stage one)
-    balanced_margin: float  # min over the margins not pinned at a hard limit (stage two)
-    start: int
-
-
-def _solve_assignment(
-    assignment: tuple[Suspension, ...],
-    b: float,
-    load_range: tuple[float, float],
-    starts: list[np.ndarray],
-    counter: list[int],
-) -> list[_Candidate]:
-    """Both stages for one suspension assignment, from every start.
-
-    Stage one maximises the worst of all margins. An end margin is *pinned* when even its
-    own best value (spring 1 at its narrowest / spring n at its widest admissible width)
-    does not exceed that optimum: it is then held at the stage-one value and stage two
-    maximises the worst of the remaining margins, so a hard limit at one end does not
-    leave the rest unbalanced (a lexicographic maximin).
-    """
-    n = len(assignment)
-    solver = _maximin_solver(n)
-    log_c = np.array([math.log(s.coefficient) for s in assignment])
-    bounds = [_admissible_widths(s, b) for s in assignment]
-    lbu = np.log([lb for lb, _ in bounds])
-    ubu = np.log([ub for _, ub in bounds])
-    log_lo_req, log_hi_req = math.log(load_range[0]), math.log(load_range[1])
-    lbx = np.concatenate([lbu, [-ca.inf]])
-    ubx = np.concatenate([ubu, [ca.inf]])
-    n_g = (n + 1) + (n - 1)
-    lbg = np.zeros(n_g)
-    ubg = np.full(n_g, ca.inf)
-    head = [log_c, [2 * b, log_lo_req, log_hi_req]]
-    # Best value each end margin can reach on its own.
-    end_max = (
-        _margins_np(log_c, lbu, b, log_lo_req, log_hi_req)[0],
-        _margins_np(log_c, ubu, b, log_lo_req, log_hi_req)[-1],
-    )
-    out = []
-    for si, u0 in enumerate(starts):
-        u0 = np.clip(u0, lbu, ubu)
-        m0 = _margins_np(log_c, u0, b, log_lo_req, log_hi_req)
-        p = np.concatenate(head + [np.ones(n + 1), np.zeros(n + 1)])
-        sol = solver(x0=np.concatenate([u0, [m0.min()]]), p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-        counter[0] += 1
-        u = np.clip(np.asarray(sol["x"]).ravel()[:n], lbu, ubu)
-        m = _margins_np(log_c, u, b, log_lo_req, log_hi_req)
-        t1 = float(m.min())
-        free = np.ones(n + 1, dtype=bool)
-        free[0] = end_max[0] > t1 + 1e-6
-        free[-1] = end_max[1] > t1 + 1e-6
-        if t1 >= -_COVER_TOL and not free.all() and free.any():
-            floor = np.where(free, 0.0, max(t1 - 1e-8, 0.0))
-            p2 = np.concatenate(head + [free.astype(float), floor])
-            sol2 = solver(x0=np.concatenate([u, [m[free].min()]]), p=p2, lbx=lbx, ubx=ubx,
-                          lbg=lbg, ubg=ubg)
-            counter[0] += 1
-            u2 = np.clip(np.asarray(sol2["x"]).ravel()[:n], lbu, ubu)
-            m2 = _margins_np(log_c, u2, b, log_lo_req, log_hi_req)
-            if m2.min() >= min(t1, 0.0) - _COVER_TOL and m2[free].min() >= m[free].min():
-                u, m = u2, m2
-        out.append(
-            _Candidate(
-                assignment,
-                tuple(float(x) for x in np.exp(u)),
-                float(m.min()),
-                float(m[free].min()) if free.any() else float(m.min()),
-                si,
-            )
-        )
-    return out
-
-
-def _starts(
-    assignment: tuple[Suspension, ...], b: float, load_range: tuple[float, float],
-    n_starts: int, rng: np.random.Generator,
-) -> list[np.ndarray]:
-    """Geometric spacing of k across the range, then seeded random log-widths."""
-    n = len(assignment)
-    k_first = load_range[0] / math.exp(_LOG_LO_PER_K)
-    k_last = load_range[1] / math.exp(_LOG_HI_PER_K)
-    k = np.geomspace(k_first, k_last, n) if n > 1 else np.array([math.sqrt(k_first * k_last)])
-    starts = [np.log([s.width_um(ki) for s, ki in zip(assignment, k)])]
-    bounds = np.array([_admissible_widths(s, b) for s in assignment])
-    for _ in range(max(n_starts - 1, 0)):
-        u = rng.uniform(np.log(bounds[:, 0]), np.log(bounds[:, 1]))
-        log_k = np.log([s.coefficient for s in assignment]) + 3 * u
-        starts.append(u[np.argsort(log_k)])
-    return starts
-
-
-# --------------------------------------------------------------------------------------
-# Result
-# --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Attempt:
-    """Best worst margin found with ``n`` springs (over assignments and starts)."""
-
-    n: int
-    worst_margin: float
-    covers: bool
-
-
-@dataclass(frozen=True)
-class SpringSetResult:
-    """An optimised spring set, the paper's set under the same measures, and the evidence.
-
-    Attributes
-    ----------
-    spring_set : SpringSet
-        The design (fewest springs, largest worst margin).
-    reference : SpringSet
-        The paper's four springs judged against the same range and bias.
-    requested_load_range_uN : (float, float) or None
-        What the caller asked for (None: Table I's range, clipped to what is reachable).
-    attempts : tuple of Attempt
-        One per n tried: the best worst margin (negative: n springs cannot cover).
-    notes : tuple of str
-        Decisions the caller should know about (e.g. a clipped default range).
-    n_solves : int
-        Ipopt solves run.
-    n_starts : int
-        Starts per suspension assignment.
-    n_best_found : int
-        Starts (over all assignments) whose result matched the best worst margin.
-    """
-
-    spring_set: SpringSet
-    reference: SpringSet
-    requested_load_range_uN: tuple[float, float] | None
-    attempts: tuple[Attempt, ...]
-    notes: tuple[str, ...] = ()
-    n_solves: int = 0
-    n_starts: int = 1
-    n_best_found: int = 1
-
-    @property
-    def springs(self) -> tuple[SpringDesign, ...]:
-        return self.spring_set.springs
-
-    @property
-    def load_range(self) -> tuple[float, float]:
-        """Designed load range (N)."""
-        return self.spring_set.load_range
-
-    @property
-    def etch_bias_um(self) -> float:
-        return self.spring_set.etch_bias_um
-
-    @property
-    def worst_margin(self) -> float:
-        return self.spring_set.worst_margin
-
-    def report(self) -> str:
-        """Readable text: the design, why n is the fewest, and the paper's set beside it."""
-        s = self.spring_set
-        lines = [
-            f"Spring set covering Nb = {_fmt_range_uN(*s.load_range)} for every μ in "
-            f"[{tc.MU_MIN.bound:g}, {tc.MU_MAX.bound:g}], etch bias ±{s.etch_bias_um:g} µm "
-            "per edge (worst case per spring)",
-        ]
-        lines += [f"note: {n}" for n in self.notes]
-        fewer = [a for a in self.attempts if a.n < s.n]
-        why = "; ".join(
-            f"{a.n} spring{'s' if a.n > 1 else ''}: best worst margin {a.worst_margin:+.3f}"
-            for a in fewer
-        )
-        head = f"{s.n} spring{'s' if s.n > 1 else ''}"
-        if why:
-            head += f" (fewer cannot cover: {why})"
-        elif s.n > 1:
-            head += " (number fixed by the caller)"
-        lines.append(head)
-        lines += s.report_lines()
-        lines.append(
-            "Paper's springs (" + ", ".join(f"{k:g}" for k in PAPER_SPRING_CONSTANTS)
-            + " N/m; 0.028 N/m on the long suspension) under the same measures:"
-        )
-        lines += self.reference.report_lines()
-        lines.append(
-            "margins: low end ln(L_lo/lo_1), i|i+1 ln(hi_i/lo_i+1), high end ln(hi_n/L_hi); "
-            "lo from k_stiff·90 nm/0.1, hi from k_soft·100 µm/0.9"
-        )
-        lines.append(
-            f"solver: Ipopt, {self.n_solves} solves, {self.n_starts} starts per suspension "
-            f"assignment; best worst margin reached {self.n_best_found} times"
-        )
-        return "\n".join(lines)
-
-    def to_json(self) -> dict:
-        """JSON-ready dict; loads in µN, widths in µm, spring constants in N/m."""
-        d = self.spring_set.to_json()
-        d.update(
-            {
-                "n_springs": self.spring_set.n,
-                "reference": self.reference.to_json(),
-                "etch_bias_um": self.etch_bias_um,
-                "load_range_uN": [_uN(x) for x in self.load_range],
-                "requested_load_range_uN": (
-                    list(self.requested_load_range_uN) if self.requested_load_range_uN else None
-                ),
-                "attempts": [
-                    {"n_springs": a.n, "worst_margin": a.worst_margin, "covers": a.covers}
-                    for a in self.attempts
-                ],
-                "notes": list(self.notes),
-                "margin_definition": (
-                    "natural-log ratios: low end ln(L_lo/lo_1), overlap i|i+1 ln(hi_i/lo_{i+1}), "
-                    "high end ln(hi_n/L_hi); lo_i = k_stiff·90 nm/0.1, hi_i = k_soft·100 µm/0.9 "
-                    "at realised widths w ± 2·etch_bias"
-                ),
-            }
-        )
-        return d
-
-    def plot(self, ax=None):
-        """Fig. 3: the Table I region in the k–Nb plane with this set and the paper's."""
-        from .plots import plot_design
-
-        return plot_design(self, ax=ax)
-
-
-# --------------------------------------------------------------------------------------
-# Entry point
-# --------------------------------------------------------------------------------------
-def _round_sig(x: float, sig: int, up: bool) -> float:
-    e = math.floor(math.log10(abs(x))) - sig + 1
-    f = (math.ceil if up else math.floor)(x / 10.0**e)
-    return f * 10.0**e
 
 
 def design_spring_set(
@@ -794,114 +209,18 @@ def design_spring_set(
     ValueError
         On malformed arguments.
     """
-    b = float(etch_bias_um)
-    if not math.isfinite(b) or b < 0:
-        raise ValueError(f"etch_bias_um = {etch_bias_um!r}: must be a finite number >= 0 µm")
-    suspensions = tuple(suspensions)
-    if not suspensions or not all(isinstance(s, Suspension) for s in suspensions):
-        raise ValueError("suspensions: must be a non-empty sequence of Suspension")
-    for s in suspensions:
-        if s.min_width_um <= 2 * b:
-            raise ValueError(
-                f"etch_bias_um = {b:g} µm: suspension {s.name!r} allows widths down to "
-                f"{s.min_width_um:g} µm, which must exceed 2·etch_bias_um = {2 * b:g} µm"
-            )
-    for name, v, lo in (("max_springs", max_springs, 1), ("n_starts", n_starts, 1)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-            raise ValueError(f"{name} = {v!r}: must be an integer >= {lo}")
-    if n_springs is not None and (
-        isinstance(n_springs, bool) or not isinstance(n_springs, (int, np.integer)) or n_springs < 1
-    ):
-        raise ValueError(f"n_springs = {n_springs!r}: must be an integer >= 1")
-    # Suspensions ordered from the most compliant: softer springs use earlier ones.
-    suspensions = tuple(sorted(suspensions, key=lambda s: s.coefficient, reverse=False))
-
-    table_lo, table_hi = tc.LOAD_MIN.bound, tc.LOAD_MAX.bound
-    table_txt = f"Table I allows Nb in [{tc.format_load(table_lo)}, {tc.format_load(table_hi)}]"
+    b = _checked_etch_bias(etch_bias_um)
+    suspensions = _checked_suspensions(suspensions, b)
+    _check_counts(n_springs, max_springs, n_starts)
     up_to = f"{n_springs}" if n_springs is not None else f"up to {max_springs}"
-    (reach_lo, reach_hi), (why_lo, why_hi) = coverable_load_range(suspensions, b)
-    notes: list[str] = []
-    if load_range_uN is None:
-        requested = None
-        lo, hi = table_lo, table_hi
-        if reach_lo > lo * (1 + tc.RTOL):
-            lo = _round_sig(reach_lo * 1.001, 3, up=True)
-            notes.append(
-                f"Table I's floor of {tc.format_load(table_lo)} cannot be reached at ±{b:g} µm "
-                f"etch bias with widths >= the process minimum; the lowest load any allowed "
-                f"spring resolves for every μ is {tc.format_load(reach_lo)} ({why_lo}); "
-                f"designing from {tc.format_load(lo)}"
-            )
-        if reach_hi < hi * (1 - tc.RTOL):
-            hi = _round_sig(reach_hi * 0.999, 3, up=False)
-            notes.append(
-                f"Table I's ceiling of {tc.format_load(table_hi)} cannot be reached; the highest "
-                f"load any allowed spring covers is {tc.format_load(reach_hi)} ({why_hi})"
-            )
-    else:
-        lo, hi = _validate_load_range_uN(load_range_uN)
-        requested = (_uN(lo), _uN(hi))
-        what = f"no set of {up_to} springs covers {_fmt_range_uN(lo, hi)}"
-        if lo < table_lo * (1 - tc.RTOL) or hi > table_hi * (1 + tc.RTOL):
-            raise InfeasibleDesignError(f"{what}: {table_txt}")
-        if lo < reach_lo * (1 - tc.RTOL):
-            raise InfeasibleDesignError(
-                f"{what}: at ±{b:g} µm etch bias the lowest load any allowed spring resolves "
-                f"for every μ in [0.1, 0.9] is {tc.format_load(reach_lo)} ({why_lo}); {table_txt}"
-            )
-        if hi > reach_hi * (1 + tc.RTOL):
-            raise InfeasibleDesignError(
-                f"{what}: at ±{b:g} µm etch bias the highest load any allowed spring covers "
-                f"for every μ in [0.1, 0.9] is {tc.format_load(reach_hi)} ({why_hi}); {table_txt}"
-            )
-    load_range = (lo, hi)
-
-    rng = np.random.default_rng(seed)
+    load_range, requested, notes = _load_range_to_design(load_range_uN, suspensions, b, up_to)
     counter = [0]
-    attempts: list[Attempt] = []
-    chosen: SpringSet | None = None
-    n_best_found = 0
     ns = [int(n_springs)] if n_springs is not None else list(range(1, max_springs + 1))
-    for n in ns:
-        cands: list[_Candidate] = []
-        for idx in itertools.combinations_with_replacement(range(len(suspensions)), n):
-            assignment = tuple(suspensions[i] for i in idx)
-            bounds = [_admissible_widths(s, b) for s in assignment]
-            if any(lb > ub for lb, ub in bounds):
-                continue
-            starts = _starts(assignment, b, load_range, n_starts, rng)
-            cands += _solve_assignment(assignment, b, load_range, starts, counter)
-        if not cands:
-            attempts.append(Attempt(n, -math.inf, False))
-            continue
-        best_t = max(c.worst_margin for c in cands)
-        covers = best_t >= -_COVER_TOL
-        log.info("n = %d springs: best worst margin %.4g over %d runs", n, best_t, len(cands))
-        if covers:
-            # Among candidates within 1e-6 of the best worst margin, take the best balanced.
-            tied = [c for c in cands if c.worst_margin >= best_t - 1e-6]
-            best = max(tied, key=lambda c: (c.balanced_margin, c.worst_margin))
-            n_best_found = sum(c.balanced_margin >= best.balanced_margin - 1e-6 for c in tied)
-            trial = SpringSet(
-                tuple(SpringDesign(w, s) for w, s in zip(best.widths_um, best.assignment)),
-                load_range, b, label="optimised",
-            )
-            failures = trial.verify()
-            if failures:  # should not happen: margins and the pointwise check disagree
-                log.warning("n = %d: optimum fails the pointwise check: %s", n, failures[0])
-                covers = False
-            else:
-                chosen = trial
-        attempts.append(Attempt(n, best_t, covers))
-        if chosen is not None:
-            break
+    attempts, chosen, n_best_found = _fewest_springs(
+        ns, suspensions, b, load_range, n_starts, np.random.default_rng(seed), counter
+    )
     if chosen is None:
-        best = max(attempts, key=lambda a: a.worst_margin)
-        raise InfeasibleDesignError(
-            f"no set of {up_to} springs covers {_fmt_range_uN(lo, hi)} at ±{b:g} µm etch bias: "
-            f"the best {best.n}-spring set has worst margin {best.worst_margin:.3g} (< 0, a gap "
-            f"of ratio {math.exp(-best.worst_margin):.3g}); {table_txt}"
-        )
+        raise _no_cover_error(attempts, up_to, load_range, b)
     return SpringSetResult(
         spring_set=chosen,
         reference=paper_spring_set(load_range, b),
@@ -911,4 +230,188 @@ def design_spring_set(
         n_solves=counter[0],
         n_starts=n_starts,
         n_best_found=n_best_found,
+    )
+
+
+# --------------------------------------------------------------------------------------
+# Steps of design_spring_set: the arguments, the load range, the search over n
+# --------------------------------------------------------------------------------------
+def _checked_etch_bias(etch_bias_um) -> float:
+    """The etch bias b (µm) as a float; refused unless finite and >= 0."""
+    b = float(etch_bias_um)
+    if not math.isfinite(b) or b < 0:
+        raise ValueError(f"etch_bias_um = {etch_bias_um!r}: must be a finite number >= 0 µm")
+    return b
+
+
+def _checked_suspensions(suspensions: Sequence[Suspension], b: float) -> tuple[Suspension, ...]:
+    """The candidate suspensions ordered from the most compliant (softer springs use earlier
+    ones); refused when empty or when the bias can etch their narrowest beam away."""
+    suspensions = tuple(suspensions)
+    if not suspensions or not all(isinstance(s, Suspension) for s in suspensions):
+        raise ValueError("suspensions: must be a non-empty sequence of Suspension")
+    for s in suspensions:
+        if s.min_width_um <= 2 * b:
+            raise ValueError(
+                f"etch_bias_um = {b:g} µm: suspension {s.name!r} allows widths down to "
+                f"{s.min_width_um:g} µm, which must exceed 2·etch_bias_um = {2 * b:g} µm"
+            )
+    return tuple(sorted(suspensions, key=lambda s: s.coefficient, reverse=False))
+
+
+def _check_counts(n_springs, max_springs, n_starts) -> None:
+    """Refuse a spring count, largest count or start count that is not an integer >= 1."""
+    for name, v, lo in (("max_springs", max_springs, 1), ("n_starts", n_starts, 1)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise ValueError(f"{name} = {v!r}: must be an integer >= {lo}")
+    if n_springs is not None and (
+        isinstance(n_springs, bool) or not isinstance(n_springs, (int, np.integer)) or n_springs < 1
+    ):
+        raise ValueError(f"n_springs = {n_springs!r}: must be an integer >= 1")
+
+
+def _table_i_loads() -> str:
+    """Table I's load bounds, as every infeasibility message ends."""
+    return (
+        f"Table I allows Nb in [{tc.format_load(tc.LOAD_MIN.bound)}, "
+        f"{tc.format_load(tc.LOAD_MAX.bound)}]"
+    )
+
+
+def _load_range_to_design(
+    load_range_uN, suspensions: tuple[Suspension, ...], b: float, up_to: str
+) -> tuple[tuple[float, float], tuple[float, float] | None, list[str]]:
+    """(load range in N, the caller's request in µN or None, notes): Table I's range clipped
+    to what any allowed spring reaches, or the caller's range checked against both."""
+    reach, why = coverable_load_range(suspensions, b)
+    if load_range_uN is None:
+        load_range, notes = _default_load_range(reach, why, b)
+        return load_range, None, notes
+    lo, hi = _validate_load_range_uN(load_range_uN)
+    _check_requested_range(lo, hi, reach, why, b, up_to)
+    return (lo, hi), (to_uN(lo), to_uN(hi)), []
+
+
+def _default_load_range(
+    reach: tuple[float, float], why: tuple[str, str], b: float
+) -> tuple[tuple[float, float], list[str]]:
+    """Table I's load range (N) with each end the springs cannot reach at this bias moved
+    inside, rounded to 3 digits; a note for each end moved."""
+    (reach_lo, reach_hi), (why_lo, why_hi) = reach, why
+    table_lo, table_hi = tc.LOAD_MIN.bound, tc.LOAD_MAX.bound
+    lo, hi = table_lo, table_hi
+    notes: list[str] = []
+    if reach_lo > lo * (1 + tc.RTOL):
+        lo = _round_sig(reach_lo * 1.001, 3, up=True)
+        notes.append(
+            f"Table I's floor of {tc.format_load(table_lo)} cannot be reached at ±{b:g} µm "
+            f"etch bias with widths >= the process minimum; the lowest load any allowed "
+            f"spring resolves for every μ is {tc.format_load(reach_lo)} ({why_lo}); "
+            f"designing from {tc.format_load(lo)}"
+        )
+    if reach_hi < hi * (1 - tc.RTOL):
+        hi = _round_sig(reach_hi * 0.999, 3, up=False)
+        notes.append(
+            f"Table I's ceiling of {tc.format_load(table_hi)} cannot be reached; the highest "
+            f"load any allowed spring covers is {tc.format_load(reach_hi)} ({why_hi})"
+        )
+    return (lo, hi), notes
+
+
+def _round_sig(x: float, sig: int, up: bool) -> float:
+    """``x`` rounded up or down to ``sig`` significant digits (a clipped range end stays reachable)."""
+    e = math.floor(math.log10(abs(x))) - sig + 1
+    f = (math.ceil if up else math.floor)(x / 10.0**e)
+    return f * 10.0**e
+
+
+def _check_requested_range(
+    lo: float, hi: float, reach: tuple[float, float], why: tuple[str, str], b: float, up_to: str
+) -> None:
+    """Refuse a requested range (N) outside Table I or beyond the loads any allowed spring
+    reaches at this bias (an explicit range is never clipped)."""
+    (reach_lo, reach_hi), (why_lo, why_hi) = reach, why
+    table_txt = _table_i_loads()
+    what = f"no set of {up_to} springs covers {format_load_range_uN(lo, hi)}"
+    if lo < tc.LOAD_MIN.bound * (1 - tc.RTOL) or hi > tc.LOAD_MAX.bound * (1 + tc.RTOL):
+        raise InfeasibleDesignError(f"{what}: {table_txt}")
+    if lo < reach_lo * (1 - tc.RTOL):
+        raise InfeasibleDesignError(
+            f"{what}: at ±{b:g} µm etch bias the lowest load any allowed spring resolves "
+            f"for every μ in [0.1, 0.9] is {tc.format_load(reach_lo)} ({why_lo}); {table_txt}"
+        )
+    if hi > reach_hi * (1 + tc.RTOL):
+        raise InfeasibleDesignError(
+            f"{what}: at ±{b:g} µm etch bias the highest load any allowed spring covers "
+            f"for every μ in [0.1, 0.9] is {tc.format_load(reach_hi)} ({why_hi}); {table_txt}"
+        )
+
+
+def _fewest_springs(
+    ns: list[int], suspensions: tuple[Suspension, ...], b: float, load_range: tuple[float, float],
+    n_starts: int, rng: np.random.Generator, counter: list[int],
+) -> tuple[list[Attempt], SpringSet | None, int]:
+    """Try each n in turn and stop at the first whose best set covers the range and passes
+    the pointwise check: (one attempt per n tried, that set or None, starts that reached it)."""
+    attempts: list[Attempt] = []
+    for n in ns:
+        cands = _assignment_solutions(n, suspensions, b, load_range, n_starts, rng, counter)
+        if not cands:
+            attempts.append(Attempt(n, -math.inf, False))
+            continue
+        best_t = max(c.worst_margin for c in cands)
+        covers = best_t >= -COVER_TOL
+        log.info("n = %d springs: best worst margin %.4g over %d runs", n, best_t, len(cands))
+        chosen, n_best_found = _verified_best(cands, best_t, n, load_range, b) if covers else (None, 0)
+        attempts.append(Attempt(n, best_t, chosen is not None))
+        if chosen is not None:
+            return attempts, chosen, n_best_found
+    return attempts, None, 0
+
+
+def _assignment_solutions(
+    n: int, suspensions: tuple[Suspension, ...], b: float, load_range: tuple[float, float],
+    n_starts: int, rng: np.random.Generator, counter: list[int],
+) -> list[MaximinSolution]:
+    """Every start's solution for every admissible assignment of the suspensions to n
+    springs (softer springs on the more compliant suspensions)."""
+    cands: list[MaximinSolution] = []
+    for idx in itertools.combinations_with_replacement(range(len(suspensions)), n):
+        assignment = tuple(suspensions[i] for i in idx)
+        bounds = [admissible_widths(s, b) for s in assignment]
+        if any(lb > ub for lb, ub in bounds):
+            continue
+        starts = maximin_starts(assignment, b, load_range, n_starts, rng)
+        cands += solve_assignment(assignment, b, load_range, starts, counter)
+    return cands
+
+
+def _verified_best(
+    cands: list[MaximinSolution], best_t: float, n: int, load_range: tuple[float, float], b: float
+) -> tuple[SpringSet | None, int]:
+    """The best balanced set among the solutions within 1e-6 of the best worst margin, or
+    None when it fails the pointwise check; and how many starts reached it."""
+    tied = [c for c in cands if c.worst_margin >= best_t - 1e-6]
+    best = max(tied, key=lambda c: (c.balanced_margin, c.worst_margin))
+    n_best_found = sum(c.balanced_margin >= best.balanced_margin - 1e-6 for c in tied)
+    trial = SpringSet(
+        tuple(SpringDesign(w, s) for w, s in zip(best.widths_um, best.assignment)),
+        load_range, b, label="optimised",
+    )
+    failures = trial.verify()
+    if failures:  # should not happen: margins and the pointwise check disagree
+        log.warning("n = %d: optimum fails the pointwise check: %s", n, failures[0])
+        return None, n_best_found
+    return trial, n_best_found
+
+
+def _no_cover_error(
+    attempts: list[Attempt], up_to: str, load_range: tuple[float, float], b: float
+) -> InfeasibleDesignError:
+    """The error when no n tried covers the range: the best attempt and the gap it leaves."""
+    best = max(attempts, key=lambda a: a.worst_margin)
+    return InfeasibleDesignError(
+        f"no set of {up_to} springs covers {format_load_range_uN(*load_range)} at ±{b:g} µm etch bias: "
+        f"the best {best.n}-spring set has worst margin {best.worst_margin:.3g} (< 0, a gap "
+        f"of ratio {math.exp(-best.worst_margin):.3g}); {_table_i_loads()}"
     )

@@ -10,13 +10,13 @@ from design.cli import main
 from design.experiment import (
     Candidate,
     _effective,
-    _schur_information,
     design_experiment,
     prior_from_fit,
     run_information,
     run_information_parts,
     run_problem,
 )
+from design.information import _schur_information
 
 SMALL = [Candidate(2.13, 5, 100, 12.0), Candidate(20.3, 30, 30, 12.0), Candidate(2.13, 10, 1000, 12.0)]
 
@@ -183,11 +183,11 @@ def test_cli_writes_plan(tmp_path, capsys, strict_json):
 
 @pytest.mark.slow
 def test_verification_measures_spread(tmp_path, monkeypatch):
-    from design import experiment
+    from design import verification
 
     plan = design_experiment(2, candidates=SMALL[:2], reference=SMALL[:2][::-1])
     record = tmp_path / "mc.jsonl"
-    mc = experiment.verify_plans(plan, 3, seed=1, workers=2, record=record)
+    mc = verification.verify_plans(plan, 3, seed=1, workers=2, record=record)
     assert mc["repeats"] == 3 and mc["plan_failed"] == 0
     for n in plan.free:
         assert np.isfinite(mc["plan_stderr"][n]) and mc["plan_stderr"][n] > 0
@@ -196,21 +196,21 @@ def test_verification_measures_spread(tmp_path, monkeypatch):
     assert "Monte Carlo" in plan.report()
     assert len(record.read_text().splitlines()) == 6
     # a rerun takes every fit from the record: no fit is run again
-    monkeypatch.setattr(experiment, "_fit_plan", lambda *a: (_ for _ in ()).throw(AssertionError("refit")))
-    again = experiment.verify_plans(plan, 3, seed=1, workers=1, record=record)
+    monkeypatch.setattr(verification, "_fit_plan", lambda *a: (_ for _ in ()).throw(AssertionError("refit")))
+    again = verification.verify_plans(plan, 3, seed=1, workers=1, record=record)
     assert again["plan_stderr"] == mc["plan_stderr"]
     # ... but not under other conditions (another noise level, another coating)
-    ctx = lambda noise, jit=experiment.JITTER_LOAD: experiment._record_context(  # noqa: E731
-        plan, noise, experiment.STICK_SPEED, jit)
-    assert len(experiment._load_record(record, ctx(90.0))) == 6
-    assert not experiment._load_record(record, ctx(60.0))
-    assert not experiment._load_record(record, ctx(90.0, 0.0))  # nominal loads: other data
+    ctx = lambda noise, jit=verification.JITTER_LOAD: verification._record_context(  # noqa: E731
+        plan, noise, verification.STICK_SPEED, jit)
+    assert len(verification._load_record(record, ctx(90.0))) == 6
+    assert not verification._load_record(record, ctx(60.0))
+    assert not verification._load_record(record, ctx(90.0, 0.0))  # nominal loads: other data
     # each fit's own intervals are kept: the coverage of the plan's nominal values
     assert mc["plan_coverage_fits"] == 3 and all(0.0 <= mc["plan_coverage"][n] <= 1.0 for n in plan.free)
 
 
 def test_verification_interleaves_the_plans():
-    from design.experiment import _job_order
+    from design.verification import _job_order
 
     keys = ("plan_stderr", "reference_stderr")
     jobs = _job_order(keys, 3, 1, {})
@@ -225,7 +225,7 @@ def test_verification_interleaves_the_plans():
 
 
 def test_verification_redraws_the_loads():
-    from design.experiment import _jittered
+    from design.verification import _jittered
 
     plan = [Candidate(2.13, 10.0, 100), Candidate(2.13, 10.0, 100), Candidate(20.3, 40.0, 30)]
     a, b = _jittered(plan, 3, 0.05), _jittered(plan, 3, 0.05)
