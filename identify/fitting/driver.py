@@ -231,18 +231,77 @@ def _fit(data, *, coating, options, true_values, progress):
     if not said and opts.stick_speed != "off":
         opts, final_opts, stick_note = _decide_stick(runs_ev, model, {**preset, **opts.start}, opts, final_opts, say)
         preset = parameter_set(coating, {n: v for n, v in opts.fixed.items()})
-    from identify.fitting.regime_check import RegimeRun, steps_of
+    left = _LeftOut(excluded, say)
+    run_data, stepping = _runs_to_fit(runs_ev, preset, opts, left, say)
+    start, start_source = start_values(run_data, law, preset, opts)
+    from identify.fitting.problem import MEASUREMENT
 
-    run_data = []
-    regime_runs = []  # left out for their regime: still evidence for the diagnosis
+    values = {**model.defaults(preset), **{n: preset[n] for n in MEASUREMENT}, **start}
+    run_data = _creep_runs_checked(run_data, model, values, stepping, left)
+    prob = _problem(run_data, model, values, opts, left, say)
+    n_obs = prob.n_observations()
+    failed0 = prob.arcs.n_failed
+    prob.progress = say
+    start_given = dict(start)
+    start, staged, starts, start_source = _starts(prob, start, start_source, opts, say)
+    solves = _Solves(prob, say, loose=opts.multistart == 0)
+    stage = Stage(say, "solver starts", len(starts)) if len(starts) > 1 else None
+    if stage is not None:
+        stage.start(f"{len(starts)} starts ({opts.multistart} random)")
+    for i, w in enumerate(starts):
+        solves.solve_from(w, f"start {i + 1} of {len(starts)}", stage=stage)
+    best = min(solves.results, key=lambda r: r["f"])
+    best, start, start_source = _second_opinion(solves, best, start, start_given, staged, start_source)
+    if not np.isfinite(best["f"]):
+        raise FitError("every solver start failed: " + "; ".join(r["status"] for r in solves.results))
+    t_seq = time.perf_counter()
+    prob, best = decide_sequence(prob, best, model, values, opts, say, fresh_start=start_given)
+    t_seq = time.perf_counter() - t_seq
+    solves.prob = prob  # (the problem now carries the decided sequence)
+    best, start, start_source, rivals = _spread_if_suspect(solves, best, start, start_source, opts, preset, say)
+    if final_opts.trigger == "interval":
+        prob, best, how = _interval_solve(prob, best, final_opts, say)
+        start_source += how
+    if best.get("shared"):
+        say("the solution on the covariance's central differences")
+        best = prob.accurate_differences(best)
+    say("covariance")
+    prob.progress = None  # the result keeps the problem; the caller's callback is not its business
+    result = build_result(prob, best, solves.results, left.excluded, start, start_source, coating, true_values,
+                          time.perf_counter() - wall0)
+    result.timing["sequence_s"] = float(t_seq)
+    flag_rivals(result, prob, best, rivals)
+    result.regime_runs = left.regime_runs
+    _check_left_out(result, model, prob, say)
+    _solver_notes(result, prob, failed0, n_obs, stick_note)
+    if opts.stick_speed == "auto" and stick_note and stick_note.startswith("as written"):
+        return _stick_by_likelihood(result, data, coating, final_opts, true_values, progress, say)
+    if stick_note and stick_note.startswith("as written"):
+        _flag_stick_dependence(result)
+    return result
 
-    def keep_for_regime(rd):
+
+class _LeftOut:
+    """The runs a fit leaves out: (name, why) for the report, and those left out for their
+    regime kept as evidence for the diagnosis (:class:`identify.fitting.regime_check.RegimeRun`)."""
+
+    def __init__(self, excluded: list, say):
+        self.excluded, self.regime_runs, self.say = excluded, [], say
+
+    def for_regime(self, rd) -> None:
+        from identify.fitting.regime_check import RegimeRun
+
         try:
-            regime_runs.append(RegimeRun.of(rd))
+            self.regime_runs.append(RegimeRun.of(rd))
         except Exception as err:  # (odd metadata): the run is left out all the same
-            say(f"warning: {rd.name}: cannot be checked against the model later: {err}")
+            self.say(f"warning: {rd.name}: cannot be checked against the model later: {err}")
+
+
+def _runs_to_fit(runs_ev, preset, opts, left: _LeftOut, say) -> tuple[list, dict]:
+    """The runs' data for the NLP, and the runs that step between their slips under the
+    stick option (name -> why); runs without slips are left out unless creep runs are used."""
     v_stick = float({**preset, **opts.start}.get("v_stick", 0.0))
-    stepping = {}  # name -> why: runs that step between their slips under the stick option
+    run_data, stepping = [], {}
     for ev in runs_ev:
         rd = make_run_data(ev, v_stick=v_stick)
         if rd.kind == "creep" and make_run_data(ev).kind == "events":
@@ -252,39 +311,48 @@ def _fit(data, *, coating, options, true_values, progress):
             say(f"{rd.name}: {stepping[rd.name]}; used only where the model creeps too")
         if rd.kind == "creep":
             if not opts.use_creep_runs:
-                excluded.append((rd.name, stepping.get(rd.name, f"no resolvable slips (data regime {ev.regime})")))
-                keep_for_regime(rd)
+                left.excluded.append((rd.name, stepping.get(rd.name,
+                                                            f"no resolvable slips (data regime {ev.regime})")))
+                left.for_regime(rd)
                 continue
         if rd.kind == "events" and len(rd.trigger_steps) < 1:
-            excluded.append((rd.name, "no slip detected"))
+            left.excluded.append((rd.name, "no slip detected"))
             continue
         run_data.append(rd)
-    start, start_source = start_values(run_data, law, preset, opts)
-    from identify.fitting.problem import MEASUREMENT
+    return run_data, stepping
 
-    values = {**model.defaults(preset), **{n: preset[n] for n in MEASUREMENT}, **start}
-    # a creep run is used only where the model at the start creeps too
-    if any(r.kind == "creep" for r in run_data):
-        from identify.simulation.hybrid import RunConditions, SimulationOptions, simulate_run
 
-        kept = []
-        for r in run_data:
-            if r.kind != "creep":
+def _creep_runs_checked(run_data, model, values, stepping, left: _LeftOut) -> list:
+    """The runs kept: a creep run is used only where the model at the start creeps too."""
+    if not any(r.kind == "creep" for r in run_data):
+        return run_data
+    from identify.fitting.regime_check import steps_of
+    from identify.simulation.hybrid import RunConditions, SimulationOptions, simulate_run
+
+    kept = []
+    for r in run_data:
+        if r.kind != "creep":
+            kept.append(r)
+            continue
+        try:
+            sim = simulate_run(model, values, RunConditions(r.k, r.Nb, r.fp, steps_of(r)),
+                               SimulationOptions(record=False))
+            if sim.regime == "creep":
                 kept.append(r)
-                continue
-            try:
-                sim = simulate_run(model, values, RunConditions(r.k, r.Nb, r.fp, steps_of(r)),
-                                   SimulationOptions(record=False))
-                if sim.regime == "creep":
-                    kept.append(r)
-                else:
-                    why = f"{stepping[r.name]};" if r.name in stepping else "no resolvable slips and"
-                    excluded.append((r.name, f"{why} the model predicts {sim.regime}, not steady creep"))
-                    keep_for_regime(r)
-            except Exception as err:
-                excluded.append((r.name, f"no resolvable slips; creep check failed: {err}"))
-                keep_for_regime(r)
-        run_data = kept
+            else:
+                why = f"{stepping[r.name]};" if r.name in stepping else "no resolvable slips and"
+                left.excluded.append((r.name, f"{why} the model predicts {sim.regime}, not steady creep"))
+                left.for_regime(r)
+        except Exception as err:
+            left.excluded.append((r.name, f"no resolvable slips; creep check failed: {err}"))
+            left.for_regime(r)
+    return kept
+
+
+def _problem(run_data, model, values, opts, left: _LeftOut, say) -> Problem:
+    """The NLP of the runs kept; a FitError where no run is left or the runs cannot fix
+    the free parameters."""
+    excluded, regime_runs = left.excluded, left.regime_runs
     if not run_data:
         # (a reason that already starts with the file's name, as a format error's does, is not prefixed again)
         raise FitError("no run could be used: " + "; ".join(why if str(why).startswith(str(n)) else f"{n}: {why}"
@@ -301,15 +369,21 @@ def _fit(data, *, coating, options, true_values, progress):
         # (creep runs alone give one mean each: a "fit" of four parameters to three of
         # them had put μmax at ± 0.03 %, measured on logistic-law data at Table II)
         used = [f"{r.name} ({'creep' if r.kind == 'creep' else f'{len(r.trigger_steps)} slip(s)'})" for r in run_data]
-        left = ("; left out: " + "; ".join(f"{n}: {why}" for n, why in excluded)) if excluded else ""
+        out = ("; left out: " + "; ".join(f"{n}: {why}" for n, why in excluded)) if excluded else ""
         own = f" and {n_eff - prob.n_theta} of the runs' own" if n_eff > prob.n_theta else ""
         raise FitError(f"{n_obs} observation(s) for {n_eff} free dimension(s) ({', '.join(prob.theta.names)}{own}): "
-                       f"the run(s) used cannot fix them: {', '.join(used)}{left}. Record runs "
+                       f"the run(s) used cannot fix them: {', '.join(used)}{out}. Record runs "
                        "that stick-slip, or free fewer parameters", excluded, regime_runs=regime_runs,
                        values=values, used=[r.name for r in run_data], counts=(n_obs, n_eff))
-    failed0 = prob.arcs.n_failed
-    prob.progress = say
-    start_given, staged = dict(start), None
+    return prob
+
+
+def _starts(prob, start: dict, start_source: str, opts, say):
+    """(start, the staged start or None, the solver's starting points, where they came
+    from): the staged start where it fits better than the one given, then ``multistart``
+    random points about it."""
+    staged = None
+    start_given = dict(start)
     if opts.staged_start:
         from identify.fitting.start import staged_start, start_merit
 
@@ -334,35 +408,41 @@ def _fit(data, *, coating, options, true_values, progress):
                                     rng.normal(0, 0.3, prob.n_theta) * np.abs(w0[: prob.n_theta]) + 1e-3),
                                     prob.theta.lo + 1e-9, prob.theta.hi - 1e-9)
         starts.append(prob.sync_start_positions(w) if prob.E else w)
-    results = []
+    return start, staged, starts, start_source
 
-    # one start's solution only decides the mode sequence, which ends with a solve to the
-    # full tolerance; the values of several starts are compared, so each is solved fully
-    loose = opts.multistart == 0
 
-    def solve_from(w, label, loose=loose, stage=None):
+class _Solves:
+    """Every solve of a fit, in order (the report's multistart summary counts them).
+    ``loose``: one start's solution only decides the mode sequence, which ends with a
+    solve to the full tolerance; the values of several starts are compared, so each is
+    solved fully."""
+
+    def __init__(self, prob, say, loose: bool):
+        self.prob, self.say, self.loose, self.results = prob, say, loose, []
+
+    def solve_from(self, w, label: str, loose: bool | None = None, stage=None) -> dict:
         if stage is None:
-            say(f"solving: {label}")
+            self.say(f"solving: {label}")
         try:
-            results.append(dict(prob.solve(w, loose=loose), start_w=w))
+            self.results.append(dict(self.prob.solve(w, loose=self.loose if loose is None else loose), start_w=w))
         except Exception as err:
-            results.append(dict(w=w, f=np.inf, status=f"failed: {err}", success=False, iterations=0, wall_s=0.0,
-                                start_w=w))
+            self.results.append(dict(w=w, f=np.inf, status=f"failed: {err}", success=False, iterations=0,
+                                     wall_s=0.0, start_w=w))
         if stage is not None:
-            stage.advance(f"{label}: {results[-1]['status']}")
+            stage.advance(f"{label}: {self.results[-1]['status']}")
+        return self.results[-1]
 
-    stage = Stage(say, "solver starts", len(starts)) if len(starts) > 1 else None
-    if stage is not None:
-        stage.start(f"{len(starts)} starts ({opts.multistart} random)")
-    for i, w in enumerate(starts):
-        solve_from(w, f"start {i + 1} of {len(starts)}", stage=stage)
-    best = min(results, key=lambda r: r["f"])
-    # the start's χ² does not say where a solve will end, so a suspect solution gets a
-    # second opinion from the start that was not taken. Measured: from a staged start that
-    # looked better, 4 of 9 fits of a two-condition plan ended in a basin with τ → 0 and
-    # A → 0 (reduced χ² 6, line search failed) while the truth fitted at 1.0; and on the
-    # 5-run speed benchmark the staged start was rejected (χ² 1.6e11 against 3.9e6)
-    # and the solve from the unstaged one stalled at χ² 1.3e6
+
+def _second_opinion(solves: _Solves, best, start, start_given, staged, start_source):
+    """A suspect first solution solved again from the start not taken (staged or not),
+    kept if better: (best, start, start_source).
+
+    Why: the start's χ² does not say where a solve will end. Measured: from a staged start
+    that looked better, 4 of 9 fits of a two-condition plan ended in a basin with τ → 0
+    and A → 0 (reduced χ² 6, line search failed) while the truth fitted at 1.0; and on the
+    5-run speed benchmark the staged start was rejected (χ² 1.6e11 against 3.9e6) and the
+    solve from the unstaged one stalled at χ² 1.3e6."""
+    prob = solves.prob
     other = None
     if start != start_given:
         other = (start_given, "the start before staging", "unstaged")
@@ -370,71 +450,58 @@ def _fit(data, *, coating, options, true_values, progress):
         other = (staged, "the staged start it rejected", "staged")
     why = (suspect_reason(prob, best) or improbable(prob, best)) if other is not None else ""
     if why:
-        solve_from(prob.initial_w(other[0]), f"the fit looks wrong ({why}); again from {other[1]}")
-        better = results[-1]["f"] < best["f"]
+        again = solves.solve_from(prob.initial_w(other[0]), f"the fit looks wrong ({why}); again from {other[1]}")
+        better = again["f"] < best["f"]
         start_source += f" -> suspect, solved again from the {other[2]} start: " + (
             "kept" if better else "not better, not kept")
         if better:
-            best, start = results[-1], other[0]  # the report's init: where the kept solve began
-    if not np.isfinite(best["f"]):
-        raise FitError("every solver start failed: " + "; ".join(r["status"] for r in results))
-    t_seq = time.perf_counter()
-    prob, best = decide_sequence(prob, best, model, values, opts, say, fresh_start=start_given)
-    t_seq = time.perf_counter() - t_seq
-    # still suspect once the mode sequence is decided (a wrong trigger makes a misfit no
-    # start cures, and the sequence decision cures it first): a seeded multistart spread
-    # over the plausible range, so that the answer is the best of several basins rather
-    # than the first one reached
+            best, start = again, other[0]  # the report's init: where the kept solve began
+    return best, start, start_source
+
+
+def _spread_if_suspect(solves: _Solves, best, start, start_source, opts, preset, say):
+    """Still suspect once the mode sequence is decided (a wrong trigger makes a misfit no
+    start cures, and the sequence decision cures it first): a seeded multistart spread
+    over the plausible range, so that the answer is the best of several basins rather than
+    the first one reached. (best, start, start_source, rivals: the converged solutions of
+    the final problem, for the uniqueness check)."""
+    prob = solves.prob
     why = suspect_reason(prob, best) or at_bound(prob, best) or improbable(prob, best)
-    rivals = []  # converged solutions of the final problem, for the uniqueness check
-    if why and opts.auto_starts:
-        auto = spread_starts(prob, best["w"], opts.auto_starts,
-                              np.random.default_rng(opts.seed if opts.seed is not None else AUTO_SEED), preset)
-        n_before = len(results)
-        stage = Stage(say, "spread starts", len(auto))
-        stage.start(f"the fit looks wrong ({why}): {len(auto)} starts spread over the plausible ranges")
-        for i, w in enumerate(auto):
-            # (the problem now carries the decided sequence: solved to the full tolerance)
-            solve_from(w, f"spread start {i + 1} of {len(auto)}", loose=False, stage=stage)
-        rivals = [r for r in results[n_before:] if r.get("success") and np.isfinite(r["f"])]
-        new_best = min(results[n_before:], key=lambda r: r["f"])
-        kept = new_best["f"] < best["f"] - SAME_SOLUTION_TOL
-        start_source += (f" -> suspect ({why}), {len(auto)} spread starts: "
-                         + ("a better solution kept" if kept else "none better"))
-        if kept:
-            best = {**best, **{k: v for k, v in new_best.items() if k != "start_w"}}
-            th = np.atleast_1d(prob.theta.from_scaled(new_best["start_w"][: prob.n_theta]))
-            start = {n: float(v) for n, v in zip(prob.theta.names, th)}  # (the report's init)
-    if final_opts.trigger == "interval":
-        prob, best, how = _interval_solve(prob, best, final_opts, say)
-        start_source += how
-    if best.get("shared"):
-        say("the solution on the covariance's central differences")
-        best = prob.accurate_differences(best)
-    say("covariance")
-    prob.progress = None  # the result keeps the problem; the caller's callback is not its business
-    result = build_result(prob, best, results, excluded, start, start_source, coating, true_values,
-                          time.perf_counter() - wall0)
-    result.timing["sequence_s"] = float(t_seq)
-    flag_rivals(result, prob, best, rivals)
-    result.regime_runs = regime_runs
-    _check_left_out(result, model, prob, say)
-    # arcs the integrator could not finish at any tolerance: their trial points were
-    # rejected, which a solve that stalls or fails may owe to them
+    if not (why and opts.auto_starts):
+        return best, start, start_source, []
+    auto = spread_starts(prob, best["w"], opts.auto_starts,
+                         np.random.default_rng(opts.seed if opts.seed is not None else AUTO_SEED), preset)
+    n_before = len(solves.results)
+    stage = Stage(say, "spread starts", len(auto))
+    stage.start(f"the fit looks wrong ({why}): {len(auto)} starts spread over the plausible ranges")
+    for i, w in enumerate(auto):
+        solves.solve_from(w, f"spread start {i + 1} of {len(auto)}", loose=False, stage=stage)
+    tried = solves.results[n_before:]
+    rivals = [r for r in tried if r.get("success") and np.isfinite(r["f"])]
+    new_best = min(tried, key=lambda r: r["f"])
+    kept = new_best["f"] < best["f"] - SAME_SOLUTION_TOL
+    start_source += (f" -> suspect ({why}), {len(auto)} spread starts: "
+                     + ("a better solution kept" if kept else "none better"))
+    if kept:
+        best = {**best, **{k: v for k, v in new_best.items() if k != "start_w"}}
+        th = np.atleast_1d(prob.theta.from_scaled(new_best["start_w"][: prob.n_theta]))
+        start = {n: float(v) for n, v in zip(prob.theta.names, th)}  # (the report's init)
+    return best, start, start_source, rivals
+
+
+def _solver_notes(result, prob, failed0: int, n_obs: int, stick_note) -> None:
+    """What the report's solver section says beyond the solve itself: arcs the integrator
+    could not finish at any tolerance (their trial points were rejected, which a solve that
+    stalls or fails may owe to them), the detected sequence's observation count (fixing or
+    freeing a parameter can move the decided sequence, and with it the frames that count),
+    and the stick option taken."""
     n_failed = prob.arcs.n_failed - failed0
     result.solver["arcs_failed"] = int(n_failed)
-    # (fixing or freeing a parameter can move the decided sequence, and with it the frames
-    # that count: the count of the detected sequence beside it says so)
     result.solver["observations_detected"] = int(n_obs)
     if stick_note:
         result.solver["stick_option"] = stick_note
     if n_failed and prob.arcs.last_failure is not None:
         result.solver["arc_failure"] = prob.arcs.last_failure[1]
-    if opts.stick_speed == "auto" and stick_note and stick_note.startswith("as written"):
-        return _stick_by_likelihood(result, data, coating, final_opts, true_values, progress, say)
-    if stick_note and stick_note.startswith("as written"):
-        _flag_stick_dependence(result)
-    return result
 
 
 def _flag_stick_dependence(result, other=None, kept_option: bool = False) -> None:
