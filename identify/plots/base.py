@@ -70,20 +70,39 @@ def plot_simulation(result, axes: Sequence | None = None, t_window: tuple[float,
     plt = pyplot()
     if axes is None:
         fig, axes = plt.subplots(5, 1, figsize=(7, 10), sharex=True, constrained_layout=True)
+    c = result.conditions
+    t0, t1 = _simulation_window(result, n_slips) if t_window is None else t_window
+    t = _simulation_times(result, t0, t1)
+    bounds = _draw_simulation_panels(axes, result, t)
+    _frame_simulation_panels(axes, bounds)
+    axes[0].set_title(
+        f"{result.coating + ', ' if result.coating else ''}k = {c.spring_constant:g} N/m, "
+        f"$N_b$ = {c.normal_load * 1e6:g} µN, $f_p$ = {c.step_frequency:g} Hz (regime: {result.regime})",
+        fontsize=10,
+    )
+    return axes
+
+
+def _simulation_window(result, n_slips: int) -> tuple[float, float]:
+    """Default time window of :func:`plot_simulation`: from just before the second slip to
+    just after the ``n_slips``-th later one, or the whole run with fewer than 2 slips."""
     ev = result.slips
     c = result.conditions
-    if t_window is None:
-        if len(ev) >= 2:
-            i0 = 1
-            i1 = min(len(ev) - 1, i0 + n_slips)
-            t0 = ev["time_s"][i0] - 0.25 * max(ev["rest_time_s"][i0], 1 / c.step_frequency)
-            t1 = ev["time_s"][i1] + ev["duration_s"][i1] + 0.1 * max(ev["rest_time_s"][i1], 1 / c.step_frequency)
-            if i1 == i0:
-                t1 = min(c.end_time, t0 + 3 * max(ev["rest_time_s"][i0], 1 / c.step_frequency))
-        else:
-            t0, t1 = 0.0, c.end_time
-    else:
-        t0, t1 = t_window
+    if len(ev) < 2:
+        return 0.0, c.end_time
+    i0 = 1
+    i1 = min(len(ev) - 1, i0 + n_slips)
+    t0 = ev["time_s"][i0] - 0.25 * max(ev["rest_time_s"][i0], 1 / c.step_frequency)
+    t1 = ev["time_s"][i1] + ev["duration_s"][i1] + 0.1 * max(ev["rest_time_s"][i1], 1 / c.step_frequency)
+    if i1 == i0:
+        t1 = min(c.end_time, t0 + 3 * max(ev["rest_time_s"][i0], 1 / c.step_frequency))
+    return t0, t1
+
+
+def _simulation_times(result, t0: float, t1: float) -> np.ndarray:
+    """Times to draw in [t0, t1]: an even grid, the integrator's own points, and both
+    sides of every puller step so the staircases come out crisp."""
+    c = result.conditions
     t = np.linspace(t0, t1, 4000)
     extra = [ph.t for ph in result.phases]
     if extra:
@@ -92,7 +111,12 @@ def plot_simulation(result, axes: Sequence | None = None, t_window: tuple[float,
     n_first = int(np.ceil((t0 - c.t_first) * c.step_frequency))
     steps = c.t_first + np.arange(max(n_first, 0), c.n_steps) / c.step_frequency
     steps = steps[(steps >= t0) & (steps <= t1)]
-    t = np.unique(np.concatenate([t, steps, steps - 1e-12]))
+    return np.unique(np.concatenate([t, steps, steps - 1e-12]))
+
+
+def _draw_simulation_panels(ax, result, t: np.ndarray) -> list:
+    """Draw the curves of the five panels of Fig. 13 at times ``t``; returns the state limits
+    [μmin, μmax] drawn in panel (d)."""
     P = result._P
     model = result.model
     xp = result.puller_position(t)
@@ -107,7 +131,6 @@ def plot_simulation(result, axes: Sequence | None = None, t_window: tuple[float,
                    model.friction_coefficient(state, np.abs(v), x, P)) * N
     spring = model.spring_force(e, P)
     tm = t * 1e3
-    ax = axes
     ax[0].plot(tm, xp * 1e6, color="0.5", label="puller $x_p$")
     ax[0].plot(tm, x * 1e6, color="C0", label="block $x$")
     ax[0].set_ylabel("position (µm)")
@@ -128,8 +151,12 @@ def plot_simulation(result, axes: Sequence | None = None, t_window: tuple[float,
     ax[4].plot(tm, spring * 1e6, color="C2", lw=1.0, zorder=3, label=r"spring force $k\,e$")
     ax[4].set_ylabel("force (µN)")
     ax[4].set_xlabel("time (ms)")
-    # Each panel keeps a band above its data for the panel letter and the legend, so that
-    # neither covers a curve whatever the run (the band is sized in points).
+    return bounds
+
+
+def _frame_simulation_panels(ax, bounds: list) -> None:
+    """Y limits, panel letter and legend of each Fig. 13 panel: a band above the data
+    (sized in points) keeps the letter and the legend off the curves whatever the run."""
     fig = ax[0].figure
     for a, letter, extra in zip(ax, "abcde", ([], [], [], bounds, [])):
         ys = [ln.get_ydata() for ln in a.get_lines() if len(ln.get_xdata()) > 2] + [np.asarray(extra, float)]
@@ -147,12 +174,6 @@ def plot_simulation(result, axes: Sequence | None = None, t_window: tuple[float,
         if a.get_legend_handles_labels()[0]:
             a.legend(loc="upper right", fontsize=8, ncol=2, frameon=False, borderaxespad=0.2,
                      handlelength=1.6, columnspacing=1.2)
-    ax[0].set_title(
-        f"{result.coating + ', ' if result.coating else ''}k = {c.spring_constant:g} N/m, "
-        f"$N_b$ = {c.normal_load * 1e6:g} µN, $f_p$ = {c.step_frequency:g} Hz (regime: {result.regime})",
-        fontsize=10,
-    )
-    return axes
 
 
 def plot_regime_map(rmap, ax=None):

@@ -1,4 +1,5 @@
-"""Recorded traces: read, check and write the trace format (``shared/TRACE_FORMAT.md``).
+"""Recorded traces: one run as a :class:`Trace`, many as a :class:`TraceSet`
+(``shared/TRACE_FORMAT.md``).
 
 One run is two files with the same stem: ``RUN.csv`` (time in s, spring elongation in
 µm, optionally the puller position in µm, one row per camera frame) and ``RUN.json``
@@ -8,25 +9,32 @@ reasons every refused run was refused, so one bad file never loses a batch.
 
 Every rule of the format is enforced on read, and a violation raises
 :class:`TraceFormatError` naming the file, the physical line (1-based, comments and
-all) and the rule.
+all) and the rule. The rules live in :mod:`identify.traces.trace_metadata` (the
+conditions) and :mod:`identify.traces.trace_files` (the two files as text).
 """
 
 from __future__ import annotations
 
-import io
-import json
-import math
 import os
-import re
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 import numpy as np
 
-from identify.model.params import SPECS, ParameterError, normal_load_from_voltage
+from identify.model.params import SPECS, normal_load_from_voltage
 from identify.model.plausible import PLATFORM_RANGES, platform_problem
+from identify.traces.trace_files import (
+    check_writable_times,
+    conditions_json_text,
+    parse_conditions_json,
+    parse_samples_csv,
+    samples_csv_text,
+)
+from identify.traces.trace_format import FORMAT as FORMAT
+from identify.traces.trace_format import TraceFormatError as TraceFormatError
+from identify.traces.trace_metadata import check_metadata, ordered_metadata
 
 __all__ = [
     "FORMAT",
@@ -37,306 +45,8 @@ __all__ = [
     "trace_paths",
 ]
 
-FORMAT = "nanofrictor-trace/1"
-"""Value of the ``format`` key of every trace's JSON file."""
 
-_HEADERS = (("time_s", "elongation_um"), ("time_s", "elongation_um", "puller_um"))
-_HEADER_TEXT = " or ".join(repr(",".join(h)) for h in _HEADERS)
-
-# Printed precision of the CSV: 1 ns and 1 pm are far below the camera's resolution, and
-# fixed decimals make a write -> read -> write cycle byte-identical.
-_TIME_FMT = "%.9f"
-_LENGTH_FMT = "%.6f"
-
-# Key order of the JSON file: format first, then who/what, then conditions, then notes;
-# keys not listed here follow in sorted order so the output never depends on how the
-# dict was built.
-_KEY_ORDER = (
-    "format",
-    "coating",
-    "device",
-    "spring_constant_N_per_m",
-    "normal_load_uN",
-    "block_voltage_V",
-    "step_frequency_Hz",
-    "step_size_nm",
-    "frame_rate_Hz",
-    "block_mass_kg",
-    "notes",
-)
-_POSITIVE_REQUIRED = ("spring_constant_N_per_m", "step_frequency_Hz")
-_POSITIVE_OPTIONAL = ("step_size_nm", "frame_rate_Hz", "block_mass_kg")
-_TEXT_OPTIONAL = ("coating", "device", "notes")
-
-# A decimal number as the format allows it (what np.loadtxt and humans agree on); the
-# slow path uses this instead of float(), which would also take "1_000" or " nan ".
-_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
-_NONFINITE = re.compile(r"[+-]?(?:nan|inf|infinity)", re.IGNORECASE)
-
-
-# ----------------------------------------------------------------------------- errors
-class TraceFormatError(ValueError):
-    """A trace file breaks a rule of the format.
-
-    Attributes
-    ----------
-    path : str
-        The offending file.
-    line : int or None
-        1-based physical line number in that file (comment lines counted), or None
-        when the rule concerns the whole file.
-    rule : str
-        What is wrong, in words.
-    """
-
-    def __init__(self, path: str | os.PathLike, line: int | None, rule: str):
-        self.path = str(path)
-        self.line = line
-        self.rule = rule
-        super().__init__(str(self))
-
-    def __str__(self) -> str:
-        if self.line is None:
-            return f"{self.path}: {self.rule}"
-        return f"{self.path}:{self.line}: {self.rule}"
-
-    def __reduce__(self):
-        # The default reduction would call __init__ with the formatted message only
-        # (multiprocessing / dask pickle exceptions).
-        return (type(self), (self.path, self.line, self.rule))
-
-
-# ----------------------------------------------------------------------------- CSV
-def _split_lines(text: str) -> list[str]:
-    """Physical lines of ``text`` (universal newlines already applied), no terminator."""
-    lines = text.split("\n")
-    if lines and lines[-1] == "":
-        lines.pop()  # the terminator of the last line is not a blank line
-    return lines
-
-
-def _is_comment(line: str) -> bool:
-    return line.lstrip().startswith("#")
-
-
-def _read_text(path: Path) -> str:
-    """UTF-8 text of ``path`` (a BOM, as spreadsheets write, is dropped)."""
-    raw = path.read_bytes()
-    try:
-        return raw.decode("utf-8-sig").replace("\r\n", "\n").replace("\r", "\n")
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise TraceFormatError(path, line, "not UTF-8 text") from None
-
-
-def _parse_header(path: Path, lines: list[str]) -> tuple[int, tuple[str, ...]]:
-    """Index of the header line and its column names."""
-    for i, line in enumerate(lines):
-        if _is_comment(line):
-            continue
-        if not line.strip():
-            raise TraceFormatError(path, i + 1, "blank line")
-        names = tuple(c.strip() for c in line.split(","))
-        if names not in _HEADERS:
-            raise TraceFormatError(
-                path, i + 1, f"bad header {line.strip()!r}: expected {_HEADER_TEXT}"
-            )
-        return i, names
-    raise TraceFormatError(path, None, f"no header line: expected {_HEADER_TEXT}")
-
-
-def _check_cell(cell: str, column: str) -> str | None:
-    """Why ``cell`` is not a valid number of ``column``, or None if it is."""
-    s = cell.strip()
-    if not s:
-        return f"blank cell in column {column}"
-    if _NUMBER.fullmatch(s):
-        return None
-    if _NONFINITE.fullmatch(s):
-        return f"{s!r} in column {column}: values must be finite numbers"
-    return f"{s!r} in column {column} is not a number"
-
-
-def _scan_rows(path: Path, lines: list[str], header: int, names: tuple[str, ...]) -> None:
-    """Line-by-line check of the data rows; raises at the first offending line.
-
-    Only called when the vectorised parse found a problem, so clarity beats speed here.
-    """
-    ncol = len(names)
-    previous_time: float | None = None
-    for i in range(header + 1, len(lines)):
-        line = lines[i]
-        if _is_comment(line):
-            continue
-        if not line.strip():
-            raise TraceFormatError(path, i + 1, "blank line")
-        cells = line.split(",")
-        if len(cells) != ncol:
-            raise TraceFormatError(
-                path, i + 1, f"expected {ncol} cells ({','.join(names)}), found {len(cells)}"
-            )
-        for cell, column in zip(cells, names):
-            why = _check_cell(cell, column)
-            if why is not None:
-                raise TraceFormatError(path, i + 1, why)
-        t = float(cells[0])
-        if previous_time is not None and t <= previous_time:
-            kind = "duplicate" if t == previous_time else "decreasing"
-            raise TraceFormatError(
-                path, i + 1,
-                f"{kind} time: time_s = {cells[0].strip()} after {previous_time!r}; "
-                "times must strictly increase",
-            )
-        previous_time = t
-
-
-def _parse_csv(path: Path) -> tuple[np.ndarray, tuple[str, ...]]:
-    """Checked samples of a trace CSV: array (n_rows, n_cols) in file units, and names."""
-    text = _read_text(path)
-    lines = _split_lines(text)
-    if not lines:
-        raise TraceFormatError(path, None, f"empty file: expected the header {_HEADER_TEXT}")
-    header, names = _parse_header(path, lines)
-    body = lines[header + 1:]
-    # Fast path: drop comments, hand the rest to numpy's C parser, check with array
-    # operations. np.loadtxt silently skips blank lines, so those are looked for here.
-    data = [ln for ln in body if not _is_comment(ln)]
-    clean = all(ln.strip() for ln in data)
-    values: np.ndarray | None = None
-    parse_error: Exception | None = None
-    if clean and data:
-        try:
-            values = np.loadtxt(data, delimiter=",", comments=None, ndmin=2, dtype=np.float64)
-        except ValueError as exc:
-            parse_error = exc
-    if values is not None:
-        ok = (
-            values.shape[1] == len(names)
-            and bool(np.isfinite(values).all())
-            and bool((np.diff(values[:, 0]) > 0).all())
-        )
-        if ok:
-            if len(values) < 2:
-                raise TraceFormatError(
-                    path, None, f"at least 2 data rows are needed, found {len(values)}"
-                )
-            return values, names
-    # Slow path: find and name the first offending line.
-    _scan_rows(path, lines, header, names)
-    if not data:
-        raise TraceFormatError(path, None, "at least 2 data rows are needed, found 0")
-    # The scan accepted every line although numpy did not: report numpy's reason.
-    raise TraceFormatError(path, None, f"cannot parse the samples: {parse_error}")
-
-
-# ----------------------------------------------------------------------------- JSON
-def _key_line(text: str | None, key: str) -> int | None:
-    """Line of the first ``"key":`` in ``text`` (None if absent or no text)."""
-    if text is None:
-        return None
-    m = re.search(r'"' + re.escape(key) + r'"\s*:', text)
-    return None if m is None else text.count("\n", 0, m.start()) + 1
-
-
-def _is_number(v: Any) -> bool:
-    # bool is an int subclass; true/false are not numbers in this format
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-def _check_metadata(meta: Mapping[str, Any], path: str | Path, text: str | None = None) -> None:
-    """Check the conditions of a run against the format; ``text`` locates lines."""
-
-    def fail(key: str | None, rule: str) -> NoReturn:
-        raise TraceFormatError(path, _key_line(text, key) if key else None, rule)
-
-    if "format" not in meta:
-        fail(None, f"missing required key 'format' (must be {FORMAT!r})")
-    if meta["format"] != FORMAT:
-        fail("format", f"format must be {FORMAT!r}, found {meta['format']!r}")
-    for key in _POSITIVE_REQUIRED:
-        if key not in meta:
-            fail(None, f"missing required key {key!r}")
-    for key in _POSITIVE_REQUIRED + _POSITIVE_OPTIONAL:
-        if key in meta:
-            v = meta[key]
-            if not _is_number(v) or not math.isfinite(v) or v <= 0:
-                fail(key, f"{key} = {v!r}: must be a finite number > 0")
-    has_load, has_voltage = "normal_load_uN" in meta, "block_voltage_V" in meta
-    if has_load and has_voltage:
-        fail("block_voltage_V", "give exactly one of normal_load_uN or block_voltage_V, not both")
-    if not (has_load or has_voltage):
-        fail(None, "missing the normal load: give exactly one of normal_load_uN or block_voltage_V")
-    if has_load:
-        v = meta["normal_load_uN"]
-        if not _is_number(v) or not math.isfinite(v) or v <= 0:
-            fail("normal_load_uN", f"normal_load_uN = {v!r}: must be a finite number > 0")
-    else:
-        v = meta["block_voltage_V"]
-        if not _is_number(v) or not math.isfinite(v):
-            fail("block_voltage_V", f"block_voltage_V = {v!r}: must be a finite number")
-        try:
-            normal_load_from_voltage(v)
-        except ParameterError as exc:
-            fail("block_voltage_V", str(exc))
-    for key in _TEXT_OPTIONAL:
-        v = meta.get(key)
-        if v is not None and not isinstance(v, str):
-            fail(key, f"{key} = {v!r}: must be text")
-    outside = meta.get("outside_platform_ranges", False)
-    if not isinstance(outside, bool):
-        fail("outside_platform_ranges", f"outside_platform_ranges = {outside!r}: must be true or false")
-    if not outside:
-        for key in PLATFORM_RANGES:
-            if key in meta and (problem := platform_problem(key, float(meta[key]))):
-                fail(key, problem)
-
-
-def _parse_json(path: Path) -> dict:
-    """Checked metadata of a trace JSON file."""
-    text = _read_text(path)
-
-    def pairs(items: list[tuple[str, Any]]) -> dict:
-        out: dict = {}
-        for k, v in items:
-            if k in out:
-                # json would keep the last value silently; a duplicated condition is
-                # ambiguous, so refuse it
-                raise TraceFormatError(path, _key_line(text, k), f"duplicate key {k!r}")
-            out[k] = v
-        return out
-
-    def constant(name: str) -> NoReturn:
-        m = re.search(r"(?<![\w\"])-?" + re.escape(name.lstrip("-")), text)
-        line = None if m is None else text.count("\n", 0, m.start()) + 1
-        raise TraceFormatError(path, line, f"invalid JSON: {name} is not a JSON number")
-
-    try:
-        meta = json.loads(text, object_pairs_hook=pairs, parse_constant=constant)
-    except json.JSONDecodeError as exc:
-        raise TraceFormatError(path, exc.lineno, f"invalid JSON: {exc.msg}") from None
-    if not isinstance(meta, dict):
-        raise TraceFormatError(path, None, "the JSON content must be an object {...}")
-    _check_metadata(meta, path, text)
-    return meta
-
-
-def _ordered(meta: Mapping[str, Any]) -> dict:
-    known = [k for k in _KEY_ORDER if k in meta]
-    rest = sorted(k for k in meta if k not in _KEY_ORDER)
-    return {k: meta[k] for k in known + rest}
-
-
-def _json_default(obj: Any) -> Any:
-    # numpy scalars and arrays sneak into metadata from simulation results
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
-
-
+# ----------------------------------------------------------------------------- numbers
 def _tidy(x: float) -> float:
     """``x`` to 12 significant digits: hides the last-bit noise of unit conversions
     (5e-6 N × 1e6 = 4.999999999999999 µN) in the JSON a person reads."""
@@ -421,8 +131,8 @@ class Trace:
             raise TraceFormatError(where, None, "time_s must strictly increase")
         meta = dict(self.metadata)
         meta.setdefault("format", FORMAT)
-        _check_metadata(meta, where)
-        self.metadata = _ordered(meta)
+        check_metadata(meta, where)
+        self.metadata = ordered_metadata(meta)
         if self.path is not None:
             self.path = Path(self.path)
 
@@ -511,32 +221,15 @@ class Trace:
         csv_path, json_path = _pair(stem_path)
         meta = dict(self.metadata)
         meta.setdefault("format", FORMAT)
-        _check_metadata(meta, json_path)  # the metadata dict may have been edited
-        t_printed = np.round(self.time_s, 9)
-        bad = np.flatnonzero(np.diff(t_printed) <= 0)
-        if bad.size:
-            raise TraceFormatError(
-                csv_path, None,
-                f"frames {bad[0]} and {bad[0] + 1} are closer than 1 ns and would be "
-                "written with equal times",
-            )
-        columns = [self.time_s, self.elongation * 1e6]
-        header = "time_s,elongation_um"
-        fmt = [_TIME_FMT, _LENGTH_FMT]
-        if self.puller is not None:
-            columns.append(self.puller * 1e6)
-            header += ",puller_um"
-            fmt.append(_LENGTH_FMT)
-        buf = io.StringIO()
-        np.savetxt(buf, np.column_stack(columns), fmt=fmt, delimiter=",",
-                   header=header, comments="")
+        check_metadata(meta, json_path)  # the metadata dict may have been edited
+        check_writable_times(self.time_s, csv_path)
+        csv_text = samples_csv_text(self.time_s, self.elongation, self.puller)
         stem_path.parent.mkdir(parents=True, exist_ok=True)
         with open(csv_path, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(buf.getvalue())
-        text = json.dumps(_ordered(meta), indent=2, ensure_ascii=False, allow_nan=False,
-                          default=_json_default)
+            fh.write(csv_text)
+        json_text = conditions_json_text(meta)
         with open(json_path, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text + "\n")
+            fh.write(json_text)
         self.path = stem_path
         return csv_path, json_path
 
@@ -563,8 +256,8 @@ class Trace:
             raise TraceFormatError(csv_path, None, f"missing {json_path.name} (the run's conditions)")
         if not has_csv:
             raise TraceFormatError(json_path, None, f"missing {csv_path.name} (the run's samples)")
-        meta = _parse_json(json_path)
-        values, names = _parse_csv(csv_path)
+        meta = parse_conditions_json(json_path)
+        values, names = parse_samples_csv(csv_path)
         # file units -> SI: divide rather than multiply by 1e-6 so that printing the
         # value back in µm gives the same digits
         return cls(

@@ -16,20 +16,22 @@ after the triggering step by Δxp/2.
 Across runs (:func:`reduced_fit`, the paper's Figs. 10–11): the static coefficient
 against rest time, fitted with each aging law's ``static_curve`` (exponential Eq. 9,
 logarithmic Dieterich–Ruina, logistic Carlson–Batista) by bounded least squares, and
-compared by AIC and BIC.
+compared by AIC and BIC; one law's fit is :func:`identify.traces.law_curves.fit_law_curve`.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from identify.jsonio import jsonable
 from identify.model.laws import get_law
 from identify.traces.io import Trace
+from identify.traces.law_curves import LawCurveFit as LawCurveFit
+from identify.traces.law_curves import fit_law_curve as fit_law_curve
 
 __all__ = [
     "SOURCES",
@@ -58,11 +60,6 @@ SOURCES = ("events", "events_peak", "sqrt12", "sqrt12_raw")
 ``sqrt12_raw``
     σ·√12 as the paper computes it, noise included.
 """
-
-_MU_BOUNDS = (0.0, 3.0)
-_TIME_BOUNDS = (1e-6, 1e3)  # s
-_B_BOUNDS = (0.0, 3.0)
-
 
 def _f(x) -> float:
     return float(x) if x is not None else math.nan
@@ -260,251 +257,7 @@ def reduced_run(trace: Trace, events) -> ReducedRun:
     )
 
 
-# ----------------------------------------------------------------------------- law fits
-@dataclass
-class LawCurveFit:
-    """Least-squares fit of one law's static curve μs(t_rest) (``static_curve``).
-
-    Attributes
-    ----------
-    law : str
-    parameters, stderr : dict
-        By ``law.curve_parameters`` (times in s); stderr NaN when undetermined.
-    rss : float
-        Residual sum of squares.
-    n, k : int
-        Data points and free parameters.
-    aic, bic : float
-        n·ln(RSS/n) + 2k and n·ln(RSS/n) + k·ln n.
-    r2 : float
-        1 − RSS/TSS.
-    converged : bool
-        The optimiser converged and the problem is determined (n ≥ k + 1).
-    message : str
-        Why not, when not.
-    at_bounds : list of str
-        Parameters that ended on a bound: held there for the standard errors of the
-        others, their own stderr is NaN.
-    """
-
-    law: str
-    parameters: dict
-    stderr: dict
-    rss: float
-    n: int
-    k: int
-    aic: float
-    bic: float
-    r2: float
-    converged: bool
-    message: str = ""
-    at_bounds: list = field(default_factory=list)
-
-    def bound_side(self, name: str) -> str | None:
-        """'lower' or 'upper': the bound parameter ``name`` sits at (None when it is not
-        at one)."""
-        if name not in self.at_bounds:
-            return None
-        lo, hi, _ = _param_bounds(name)
-        v = self.parameters[name]
-        return "lower" if abs(v - lo) <= abs(v - hi) else "upper"
-
-    def predict(self, t_rest) -> np.ndarray:
-        """μs at rest times ``t_rest`` (s)."""
-        law = get_law(self.law)
-        theta = [self.parameters[p] for p in law.curve_parameters]
-        return law.static_curve(np.asarray(t_rest, float), theta)
-
-    def rate(self, t_rest) -> np.ndarray:
-        """dμs/dt_rest at ``t_rest`` (1/s), by complex step (exact to rounding, also
-        where the curve has saturated)."""
-        law = get_law(self.law)
-        theta = [self.parameters[p] for p in law.curve_parameters]
-        t = np.asarray(t_rest, float)
-        h = 1e-20 * np.maximum(np.abs(t), 1e-12)
-        return np.imag(law.static_curve(t + 1j * h, theta)) / h
-
-    def to_json(self) -> dict:
-        return jsonable(
-            dict(
-                law=self.law,
-                parameters=self.parameters,
-                stderr=self.stderr,
-                rss=self.rss,
-                n=self.n,
-                k=self.k,
-                aic=self.aic,
-                bic=self.bic,
-                r2=self.r2,
-                converged=self.converged,
-                message=self.message,
-                at_bounds=self.at_bounds,
-            )
-        )
-
-
-def _param_bounds(name: str) -> tuple[float, float, bool]:
-    """(lower, upper, log) of a curve parameter."""
-    if name in ("tau", "t_c"):
-        return (*_TIME_BOUNDS, True)
-    if name == "q0":
-        return (1e-6, 1.0 - 1e-9, True)
-    if name == "B":
-        return (*_B_BOUNDS, False)
-    return (*_MU_BOUNDS, False)
-
-
-def _starts(law_name: str, t: np.ndarray, mu: np.ndarray) -> list[list[float]]:
-    lo, hi = float(mu.min()), float(mu.max())
-    span = max(hi - lo, 1e-3)
-    tm = float(np.median(t))
-    taus = [tm * f for f in (0.1, 0.3, 1.0, 3.0)]
-    if law_name == "exponential":
-        return [[hi + 0.05 * span, max(lo - 0.5 * span, 0.0), tau] for tau in taus]
-    if law_name == "logistic":
-        return [
-            [hi + 0.05 * span, max(lo - 0.5 * span, 0.0), tau, q0]
-            for tau in taus
-            for q0 in (0.01, 0.1, 0.5)
-        ]
-    if law_name == "logarithmic":
-        x = np.log(t)
-        slope = float(np.polyfit(x, mu, 1)[0]) if np.ptp(x) > 0 else 0.01
-        b0 = min(max(slope, 1e-3), 1.0)
-        return [
-            [max(lo - 0.1 * span, 0.0), b0, tc] for tc in (float(t.min()) * 0.1, float(t.min()), tm)
-        ]
-    raise ValueError(f"no starting values for law {law_name!r}")
-
-
-def _failed_fit(law: str, names: list[str], n: int, message: str) -> LawCurveFit:
-    nan = {p: math.nan for p in names}
-    return LawCurveFit(
-        law=law,
-        parameters=dict(nan),
-        stderr=dict(nan),
-        rss=math.nan,
-        n=n,
-        k=len(names),
-        aic=math.nan,
-        bic=math.nan,
-        r2=math.nan,
-        converged=False,
-        message=message,
-    )
-
-
-def fit_law_curve(law_name: str, t_rest: np.ndarray, mu_s: np.ndarray) -> LawCurveFit:
-    """Fit one law's ``static_curve`` to (t_rest, μs) by bounded least squares.
-
-    Times and q0 are fitted on a log scale; several starts, the best kept. Standard
-    errors from s²·(JᵀJ)⁻¹ with s² = RSS/(n − k), J the Jacobian in the natural
-    parameters (a parameter that ends on a bound is held there: NaN stderr, k counts
-    the others in s²; AIC and BIC count every parameter). With n < k + 1 points the
-    fit is still attempted (when n ≥ 1) but reported as not converged, with NaN
-    standard errors.
-    """
-    from scipy.optimize import least_squares
-
-    law = get_law(law_name)
-    names = list(law.curve_parameters)
-    t = np.asarray(t_rest, float)
-    mu = np.asarray(mu_s, float)
-    n, k = int(t.size), len(names)
-    nan = {p: math.nan for p in names}
-    if n == 0:
-        return _failed_fit(law.name, names, 0, "no data")
-    bnd = [_param_bounds(p) for p in names]
-    is_log = np.array([b[2] for b in bnd])
-    lo = np.array([math.log(b[0]) if b[2] else b[0] for b in bnd])
-    hi = np.array([math.log(b[1]) if b[2] else b[1] for b in bnd])
-
-    def to_nat(u):
-        return np.where(is_log, np.exp(u), u)
-
-    def resid(u):
-        return law.static_curve(t, to_nat(u)) - mu
-
-    best = None
-    starts = _starts(law.name, t, mu)
-    determined = n >= k + 1
-    if not determined:  # the curve can pass through every point: one start is enough
-        starts = starts[:1]
-    for s0 in starts:
-        u0 = np.array([math.log(v) if lg else v for v, lg in zip(s0, is_log)])
-        u0 = np.clip(u0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-        try:
-            res = least_squares(
-                resid,
-                u0,
-                bounds=(lo, hi),
-                method="trf",
-                x_scale="jac",
-                xtol=1e-10,
-                ftol=1e-10,
-                gtol=1e-10,
-                max_nfev=200 * k if determined else 50 * k,
-            )
-        except (ValueError, FloatingPointError):
-            continue
-        if not np.all(np.isfinite(res.fun)):
-            continue
-        if best is None or res.cost < best.cost:
-            best = res
-    if best is None:
-        return _failed_fit(law.name, names, n, "the optimiser failed from every start")
-    theta = to_nat(best.x)
-    rss = float(np.dot(best.fun, best.fun))
-    tss = float(np.sum((mu - mu.mean()) ** 2))
-    r2 = 1.0 - rss / tss if tss > 0 else math.nan
-    rss_f = max(rss, 1e-300)
-    aic = n * math.log(rss_f / n) + 2 * k
-    bic = n * math.log(rss_f / n) + k * math.log(n)
-    # Jacobian in natural parameters: d/dθ = d/du · du/dθ, du/dθ = 1/θ on log scale
-    J = best.jac / np.where(is_log, theta, 1.0)[None, :]
-    at_bounds = [
-        p
-        for p, u, a, b in zip(names, best.x, lo, hi)
-        if u <= a + 1e-7 * (b - a) or u >= b - 1e-7 * (b - a)
-    ]
-    stderr = dict(nan)
-    message = ""
-    converged = bool(best.success)
-    if not best.success:
-        message = f"optimiser: {best.message}"
-    if not determined:
-        converged = False
-        message = f"undetermined: {n} run(s) for {k} parameters (need at least {k + 1})"
-    else:
-        # parameters on a bound are held there (their error is not defined by JᵀJ)
-        free = [i for i, p in enumerate(names) if p not in at_bounds]
-        s2 = rss / (n - len(free))
-        try:
-            Jf = J[:, free]
-            cov = s2 * np.linalg.inv(Jf.T @ Jf)
-            se = np.sqrt(np.clip(np.diag(cov), 0, None))
-            if np.all(np.isfinite(se)):
-                stderr.update({names[i]: float(v) for i, v in zip(free, se)})
-        except np.linalg.LinAlgError:
-            message = (message + "; " if message else "") + "singular JᵀJ: no standard errors"
-    if at_bounds:
-        message = (message + "; " if message else "") + f"at bound: {', '.join(at_bounds)}"
-    return LawCurveFit(
-        law=law.name,
-        parameters={p: float(v) for p, v in zip(names, theta)},
-        stderr=stderr,
-        rss=rss,
-        n=n,
-        k=k,
-        aic=aic,
-        bic=bic,
-        r2=r2,
-        converged=converged,
-        message=message,
-        at_bounds=at_bounds,
-    )
-
-
+# ----------------------------------------------------------------------------- across runs
 _DISPLAY = {"tau": ("ms", 1e3), "t_c": ("ms", 1e3)}
 
 
