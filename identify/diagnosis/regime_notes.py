@@ -174,7 +174,7 @@ def final_screen(current: dict, regime_runs: list, effects: list, opts: Diagnosi
 
 def held_evidence(rnd: list, effects: list, check, current_chi2: float | None = None) -> list:
     """The candidates of the final round (``rnd``) whose check at the realistic magnitude
-    (:func:`identify.diagnosis.candidates._at_magnitude`: the effect held there, the model's own
+    (:func:`identify.diagnosis.magnitude_check.at_magnitude`: the effect held there, the model's own
     parameters refitted to the runs fitted) makes the runs left out for their regime as
     the data's while it fits the runs fitted as well, where the final model parts from
     them (``check``, its :class:`identify.fitting.regime_check.RegimeCheck`).

@@ -39,6 +39,11 @@ from dataclasses import replace
 import numpy as np
 from scipy import stats
 
+from identify.diagnosis.features import feature_values, gap
+from identify.diagnosis.refit_readings import regime_of_left_out
+from identify.diagnosis.refit_screen import GIVE_UP_MARGIN
+from identify.diagnosis.refit_solve import candidate_problem
+
 __all__ = ["profile_chain", "regime_profile", "run_distances", "PROFILE_POINTS", "PROFILE_BEYOND"]
 
 PROFILE_POINTS = 4
@@ -81,9 +86,6 @@ def profile_chain(task, start_value: float, direction: int, w0, ev_M, n_points: 
     ``chi2`` (the runs fitted), ``status``, ``continuity_um``, ``values``, ``regime``
     (the left-out runs read there), ``joint`` (C), ``gap_um`` (the fitted runs'
     features), or ``error``."""
-    from identify.diagnosis.candidates import GIVE_UP_MARGIN, candidate_problem, regime_of_left_out
-    from identify.diagnosis.features import feature_values, gap
-
     (name,) = task.extra
     free = tuple(task.free) + (name,)
     prob = candidate_problem(task, free)
@@ -173,9 +175,48 @@ def regime_profile(task, start: dict, current_chi2: float, final_regime: dict, n
     from the profile without it), ``gap_after_um`` (the runs fitted at the best point),
     ``points`` (value, chi2, regime χ², joint, status), and ``best`` (the best point's
     values, w, ev_M, chi2: the model to go on with; not JSON)."""
+    (name,) = task.extra
+    pts = _profile_points(task, start, executor, say or (lambda m: None), continuity_um)
+    # the best point and those inside the interval: on continuity, the runs simulated
+    used = [p for p in pts if "joint" in p and p["continuity_um"] <= continuity_um and (p["regime"] or {}).get("df")
+            and not any(r.get("error") for r in p["regime"].get("runs", []))]  # (a run not read: no joint)
+    for p in pts:
+        p["used"] = any(p is q for q in used)
+    base = sum(run_distances(final_regime).values())
+    c0 = float(current_chi2) + base
+    out = dict(effect=task.effect, parameter=name, null=task.nulls.get(name), points=_points_json(pts),
+               current_joint=c0, current_chi2=float(current_chi2), current_regime_chi2=base)
+    if not used:
+        out.update(value=None, delta_chi2=float("nan"), p_value=float("nan"), reproduces=False, interval=None,
+                   null_excluded=False,
+                   error="no point of the profile could be used (none on continuity with its runs simulated)")
+        return out
+    best = min(used, key=lambda p: p["joint"])
+    inside, interval = _interval(pts, used, best["joint"] + CI_CHI2)
+    dc = c0 - best["joint"]
+    # left-out runs' largest slips: before (current values), after (best), each held out
+    d_before = _slip_diffs_um(final_regime, noise_um)
+    d_after = _slip_diffs_um(best["regime"], noise_um)
+    held = _slip_diffs_heldout_um(d_before, used, noise_um)
+    rms = lambda d: float(np.sqrt(np.mean(np.square(list(d.values()))))) if d else float("nan")  # noqa: E731
+    out.update(
+        value=best["value"], inside=inside, interval=interval,
+        delta_chi2=float(dc), p_value=float(stats.chi2.sf(dc, 1)) if dc > 0 else 1.0,
+        reproduces=bool(best["regime"].get("reproduces")),
+        # (the null is the current model, whose joint is C₀: outside the interval iff the fall exceeds 3.84)
+        null_excluded=bool(dc > CI_CHI2),
+        slip_gap_before_um=rms(d_before), slip_gap_after_um=rms(d_after), slip_gap_heldout_um=rms(held),
+        gap_after_um=float(best["gap_um"]), chi2=float(best["chi2"]),
+        best=dict(values=best["values"], w=best["w"], ev_M=best["ev_M"], chi2=float(best["chi2"]),
+                  regime=best["regime"]))
+    return out
+
+
+def _profile_points(task, start: dict, executor, say: Callable[[str], None], continuity_um: float) -> list:
+    """Every point of the profile, sorted by value: both directions from ``start`` on
+    ``executor`` (else here), then one level of refinement around the best."""
     from identify.executors import InProcess
 
-    say = say or (lambda m: None)
     (name,) = task.extra
     ex = executor if executor is not None else InProcess()
     say(f"profile of {task.effect} ({name}) on the runs fitted and the runs left out for their regime")
@@ -197,26 +238,21 @@ def regime_profile(task, start: dict, current_chi2: float, final_regime: dict, n
         say(f"profile of {task.effect}: refining around {name} = {b['value']:.4g}")
         pts += _collect([ex.submit(profile_chain, task, m, +1, b["w"], b["ev_M"], 0, True) for m in mids], say)
     pts.sort(key=lambda p: p["value"])
-    # the best point and those inside the interval: on continuity, the runs simulated
-    used = [p for p in pts if "joint" in p and p["continuity_um"] <= continuity_um and (p["regime"] or {}).get("df")
-            and not any(r.get("error") for r in p["regime"].get("runs", []))]  # (a run not read: no joint)
-    for p in pts:
-        p["used"] = any(p is q for q in used)
-    base = sum(run_distances(final_regime).values())
-    c0 = float(current_chi2) + base
-    out = dict(effect=task.effect, parameter=name, null=task.nulls.get(name), points=[
-        dict(value=p["value"], chi2=p.get("chi2"), lower_chi2=p.get("lower_chi2"),
-             regime_chi2=(p["joint"] - p["chi2"]) if "joint" in p else None, joint=p.get("joint"),
-             status=p.get("status") or p.get("error"), continuity_um=p.get("continuity_um"),
-             mismatched=len((p.get("regime") or {}).get("mismatched", [])), used=p["used"]) for p in pts],
-        current_joint=c0, current_chi2=float(current_chi2), current_regime_chi2=base)
-    if not used:
-        out.update(value=None, delta_chi2=float("nan"), p_value=float("nan"), reproduces=False, interval=None,
-                   null_excluded=False,
-                   error="no point of the profile could be used (none on continuity with its runs simulated)")
-        return out
-    best = min(used, key=lambda p: p["joint"])
-    edge = best["joint"] + CI_CHI2
+    return pts
+
+
+def _points_json(pts: list) -> list:
+    """The profile's points as the result reports them (value, χ² fitted and regime, joint,
+    status, whether used)."""
+    return [dict(value=p["value"], chi2=p.get("chi2"), lower_chi2=p.get("lower_chi2"),
+                 regime_chi2=(p["joint"] - p["chi2"]) if "joint" in p else None, joint=p.get("joint"),
+                 status=p.get("status") or p.get("error"), continuity_um=p.get("continuity_um"),
+                 mismatched=len((p.get("regime") or {}).get("mismatched", [])), used=p["used"]) for p in pts]
+
+
+def _interval(pts: list, used: list, edge: float):
+    """((lowest, highest) used point within ``edge``, (lo, hi) the nearest points certainly
+    beyond it on each side, None where a side has none: open)."""
     inside = [p for p in used if p["joint"] <= edge]
 
     def beyond(p):
@@ -234,10 +270,12 @@ def regime_profile(task, start: dict, current_chi2: float, final_regime: dict, n
     above = [p for p in pts if p["value"] > hi_v]
     lo_b = next((p["value"] for p in reversed(below) if beyond(p)), None)
     hi_b = next((p["value"] for p in above if beyond(p)), None)
-    dc = c0 - best["joint"]
-    # left-out runs' largest slips: before (current values), after (best), each held out
-    d_before = _slip_diffs_um(final_regime, noise_um)
-    d_after = _slip_diffs_um(best["regime"], noise_um)
+    return (lo_v, hi_v), (lo_b, hi_b)
+
+
+def _slip_diffs_heldout_um(d_before: dict, used: list, noise_um: dict) -> dict:
+    """Each left-out run's largest-slip difference (µm) at the profile's minimum without that
+    run in the sum: the run predicted, not fitted."""
     held = {}
     for run in d_before:
         def without(p, run=run):
@@ -246,15 +284,4 @@ def regime_profile(task, start: dict, current_chi2: float, final_regime: dict, n
         dj = _slip_diffs_um(p_j["regime"], noise_um).get(run)
         if dj is not None:
             held[run] = dj
-    rms = lambda d: float(np.sqrt(np.mean(np.square(list(d.values()))))) if d else float("nan")  # noqa: E731
-    out.update(
-        value=best["value"], inside=(lo_v, hi_v), interval=(lo_b, hi_b),
-        delta_chi2=float(dc), p_value=float(stats.chi2.sf(dc, 1)) if dc > 0 else 1.0,
-        reproduces=bool(best["regime"].get("reproduces")),
-        # (the null is the current model, whose joint is C₀: outside the interval iff the fall exceeds 3.84)
-        null_excluded=bool(dc > CI_CHI2),
-        slip_gap_before_um=rms(d_before), slip_gap_after_um=rms(d_after), slip_gap_heldout_um=rms(held),
-        gap_after_um=float(best["gap_um"]), chi2=float(best["chi2"]),
-        best=dict(values=best["values"], w=best["w"], ev_M=best["ev_M"], chi2=float(best["chi2"]),
-                  regime=best["regime"]))
-    return out
+    return held

@@ -9,9 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from identify.diagnosis.candidates import GAVE_UP, STALLED
 from identify.diagnosis.features import feature_values
 from identify.diagnosis.regime_screen import moved_text, parting, smallest_moves
+from identify.fitting.convergence import GAVE_UP, STALLED
 from identify.jsonio import write_json
 from identify.model.effects import EFFECTS, display, get_effect
 from identify.model.symbolic import LENGTH_UNIT
@@ -58,7 +58,7 @@ class DiagnosisOptions:
         tolerance, where ``"auto"`` leaves the sequence alone.
     magnitude_check : bool
         Solve each candidate that is not significant again with its parameter held at
-        its realistic magnitude (:func:`identify.diagnosis.candidates._at_magnitude`): where that
+        its realistic magnitude (:func:`identify.diagnosis.magnitude_check.at_magnitude`): where that
         fits as well, the data cannot exclude the effect, and the parameters that move to
         absorb it are reported as its partners (``confounded_with``). One more solve per
         such candidate, stopped as soon as the answer is known.
@@ -140,6 +140,27 @@ class DiagnosisResult:
                 and (not c.get("ok") or c.get("status") not in done)]
 
     def report(self) -> str:
+        """The diagnosis as text: verdict and gaps, where the misfit lives, every round's
+        candidates, and the regime screen and profile where there are any."""
+        L = self._report_head()
+        L.append("[[Where (baseline), ranked]]")
+        for m in self.where:
+            L.append(f"    {m.feature:27s} {m.misfit_sigma:5.1f} σ  p = {m.p_value:.2g}  {m.detail}")
+        if self.effects:
+            L.append("[[Where (final model)]]")
+            for m in self.where_final[:5]:
+                L.append(f"    {m.feature:27s} {m.misfit_sigma:5.1f} σ  p = {m.p_value:.2g}  {m.detail}")
+        L += self._report_rounds()
+        if self.regime_screen:
+            L += self._report_regime_screen()
+        L += self._report_regime_profile()
+        for n in self.notes:
+            L.append(f"    note: {n}")
+        return "\n".join(L)
+
+    def _report_head(self) -> list:
+        """The report's first block: verdict, effects, refits not converged, confounded
+        groups, the gaps before and after, and the wall time."""
         L = []
         L.append("[[Diagnosis]]")
         L.append(f"    verdict            = {self.verdict}")
@@ -170,13 +191,11 @@ class DiagnosisResult:
                      f"{self.final['heldout_gap_um'] * 1e3:.1f} nm held out ({self.options.folds} folds)")
         L.append(f"    wall time          = {self.timing['total_s']:.1f} s ({self.timing['refits']} refits, "
                  f"{self.options.workers if not self.options.dask else 'dask'} worker(s))")
-        L.append("[[Where (baseline), ranked]]")
-        for m in self.where:
-            L.append(f"    {m.feature:27s} {m.misfit_sigma:5.1f} σ  p = {m.p_value:.2g}  {m.detail}")
-        if self.effects:
-            L.append("[[Where (final model)]]")
-            for m in self.where_final[:5]:
-                L.append(f"    {m.feature:27s} {m.misfit_sigma:5.1f} σ  p = {m.p_value:.2g}  {m.detail}")
+        return L
+
+    def _report_rounds(self) -> list:
+        """One table per round: each candidate's Δnll, p, ΔAIC, ΔBIC, gaps and note."""
+        L = []
         for k, rnd in enumerate(self.rounds):
             L.append(f"[[Candidates, round {k + 1}]]" + (f" (after adding {', '.join(self.effects[:k])})" if k else ""))
             L.append(f"    {'effect':24s} {'Δnll':>9s} {'p':>9s} {'ΔAIC':>9s} {'ΔBIC':>9s} {'gap nm':>13s} "
@@ -194,35 +213,46 @@ class DiagnosisResult:
                          f"{_cell(_nm(c['heldout_gap_before_um']), '5.1f')}->"
                          f"{_cell(_nm(c['heldout_gap_after_um']), '<6.1f')} "
                          f"{_cell(c.get('heldout_delta_nll'), '9.2f')}  {c['note']}")
-        if self.regime_screen:
-            at = ("no baseline: the fit's start values" if self.baseline is None else
-                  "the runs left out for their regime, at the final model's values")
-            L.append(f"[[Regime screen]] ({at}, each candidate at its realistic magnitude)")
-            L.append(f"    {'model':24s} {'runs parting':>13s} {'χ²':>9s}  note")
-            for r in self.regime_screen:
-                rc = r.get("regime") or {}
-                name = r["effect"] or "(current model)"
-                part = parting(r) or "-"
-                note = "reproduces the regime" if r["reproduces_regime"] else (r.get("error") or "")
-                if r.get("confounded_with"):
-                    note += f"; confounded with {', '.join(r['confounded_with'])}"
-                L.append(f"    {name:24s} {part:>13s} {rc.get('chi2', float('nan')):9.1f}  {note}")
-            for r in smallest_moves(self.regime_moves):
-                L.append(f"    {'(current model, moved)':24s} {parting(r):>13s} {r['regime']['chi2']:9.1f}  "
-                         f"reproduces the regime with {moved_text(r)}")
-            if self.regime_moves:
-                L.append(f"    ({len(self.regime_moves)} move(s) of the current model's own parameters tried, one "
-                         "at a time toward each bound)")
-            last = self.rounds[-1] if self.rounds else []
-            for c in [c for c in last if c.get("held_regime")]:
-                h = c["held_regime"]
-                fits = ("fits the runs fitted as well" if h["fits"] else "fits the runs fitted worse"
-                        if h["delta_nll"] > h["needed_delta_nll"] else
-                        f"stopped {(h['continuity_um'] or float('nan')) * 1e3:.1f} nm off continuity")
-                L.append(f"    {c['effect'] + ', held':24s} {str(h['mismatched']) + ' of ' + str(h['df']):>13s} "
-                         f"{h['chi2']:9.1f}  "
-                         f"at {h['parameter']} = {display(h['parameter'], h['value'])}, refitted: {fits} "
-                         f"(Δnll {h['delta_nll']:+.2f}); joint Δχ² {h['joint_delta_chi2']:.1f}")
+        return L
+
+    def _report_regime_screen(self) -> list:
+        """The regime screen: the current model, each candidate at its realistic magnitude,
+        the current model moved, and the last round's candidates held, against the runs'
+        regime."""
+        L = []
+        at = ("no baseline: the fit's start values" if self.baseline is None else
+              "the runs left out for their regime, at the final model's values")
+        L.append(f"[[Regime screen]] ({at}, each candidate at its realistic magnitude)")
+        L.append(f"    {'model':24s} {'runs parting':>13s} {'χ²':>9s}  note")
+        for r in self.regime_screen:
+            rc = r.get("regime") or {}
+            name = r["effect"] or "(current model)"
+            part = parting(r) or "-"
+            note = "reproduces the regime" if r["reproduces_regime"] else (r.get("error") or "")
+            if r.get("confounded_with"):
+                note += f"; confounded with {', '.join(r['confounded_with'])}"
+            L.append(f"    {name:24s} {part:>13s} {rc.get('chi2', float('nan')):9.1f}  {note}")
+        for r in smallest_moves(self.regime_moves):
+            L.append(f"    {'(current model, moved)':24s} {parting(r):>13s} {r['regime']['chi2']:9.1f}  "
+                     f"reproduces the regime with {moved_text(r)}")
+        if self.regime_moves:
+            L.append(f"    ({len(self.regime_moves)} move(s) of the current model's own parameters tried, one "
+                     "at a time toward each bound)")
+        last = self.rounds[-1] if self.rounds else []
+        for c in [c for c in last if c.get("held_regime")]:
+            h = c["held_regime"]
+            fits = ("fits the runs fitted as well" if h["fits"] else "fits the runs fitted worse"
+                    if h["delta_nll"] > h["needed_delta_nll"] else
+                    f"stopped {(h['continuity_um'] or float('nan')) * 1e3:.1f} nm off continuity")
+            L.append(f"    {c['effect'] + ', held':24s} {str(h['mismatched']) + ' of ' + str(h['df']):>13s} "
+                     f"{h['chi2']:9.1f}  "
+                     f"at {h['parameter']} = {display(h['parameter'], h['value'])}, refitted: {fits} "
+                     f"(Δnll {h['delta_nll']:+.2f}); joint Δχ² {h['joint_delta_chi2']:.1f}")
+        return L
+
+    def _report_regime_profile(self) -> list:
+        """The regime profile's points (none without one)."""
+        L = []
         prof = self.regime_profile or {}
         if prof.get("points"):
             n = prof["parameter"]
@@ -235,9 +265,7 @@ class DiagnosisResult:
                 L.append(f"    {display(n, pt['value']):>12s} {pt['chi2'] if pt['chi2'] is not None else nan:11.1f} "
                          f"{pt['regime_chi2'] if pt['regime_chi2'] is not None else nan:10.1f} "
                          f"{pt['joint'] if pt['joint'] is not None else nan:10.1f}  {pt['status']}{mark}")
-        for n in self.notes:
-            L.append(f"    note: {n}")
-        return "\n".join(L)
+        return L
 
     def to_json(self) -> dict:
         return dict(

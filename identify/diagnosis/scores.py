@@ -8,8 +8,9 @@ import math
 import numpy as np
 from scipy import stats
 
-from identify.diagnosis.candidates import GAVE_UP, GIVE_UP_MARGIN, MAGNITUDE_MOVED_Z
-from identify.fitting.convergence import NOT_DIFFERENTIABLE
+from identify.diagnosis.magnitude_check import MAGNITUDE_MOVED_Z
+from identify.diagnosis.refit_screen import GIVE_UP_MARGIN
+from identify.fitting.convergence import GAVE_UP, NOT_DIFFERENTIABLE
 from identify.model.effects import display, get_effect
 
 LAW_DELTA_AIC = -10.0  # a non-nested law is preferred only with strong support
@@ -28,8 +29,6 @@ def score_round(results, base, opts, n_cand, fold_names=None) -> list:
     """Likelihood ratio, ΔAIC, ΔBIC, confounding and gaps of every candidate against base."""
     out = []
     alpha_c = opts.alpha / max(n_cand, 1)
-    r0 = base["r"]
-    n_obs = base["n_obs"]
     for c in results:
         if c["effect"] is None:
             continue
@@ -40,116 +39,155 @@ def score_round(results, base, opts, n_cand, fold_names=None) -> list:
             c["significant"] = False
             out.append(c)
             continue
-        dk = c["n_eff"] - base["n_eff"]
-        dnll = 0.5 * (base["chi2"] - c["chi2"])
-        c["delta_nll"] = float(dnll)
-        c["delta_aic"] = float(-2 * dnll + 2 * dk)
-        c["delta_bic"] = float(-2 * dnll + dk * math.log(max(n_obs, 2)))
-        if eff.nested and dk > 0:
-            c["p_value"] = float(stats.chi2.sf(max(2 * dnll, 0.0), dk))
-            sig = c["p_value"] < alpha_c and c["delta_bic"] < 0
-        else:
-            c["p_value"] = None
-            sig = c["delta_aic"] < LAW_DELTA_AIC
-        c["significant"] = bool(sig)
-        c["gap_before_um"] = base["gap"]["gap_um"]
-        c["gap_after_um"] = c["gap"]["gap_um"]
-        c["heldout_gap_before_um"] = base["heldout"]["gap_um"]
-        c["heldout_gap_after_um"] = c["heldout"]["gap_um"]
-        # folds the linear leave-out step did not hold for (refitted), and why a held-out
-        # gap is missing, if it is
-        c["heldout_refitted_folds"] = c["heldout"].get("refitted_folds")
-        c["heldout_unverified_folds"] = c["heldout"].get("unverified_folds")
-        c["heldout_error"] = c["heldout"].get("error")
-        c["heldout_delta_nll"] = heldout_dnll(base["heldout"], c["heldout"])
-        c["heldout_by_fold"], c["heldout_set_aside"] = heldout_by_fold(base, c, fold_names)
-        # the same gaps in noise units (1: at the noise)
-        for key, before, after in (("gap_sigma", base["gap"], c["gap"]),
-                                   ("heldout_gap_sigma", base["heldout"], c["heldout"])):
-            c[key + "_before"], c[key + "_after"] = before.get("gap_sigma"), after.get("gap_sigma")
-        conf = c.get("confounding") or {}
-        r2 = max((v.get("r2", 0.0) for v in conf.values()), default=0.0)
-        if any(v.get("confounded") for v in conf.values()):
-            r2 = max(r2, 1.0)
-        c["r2_with_model"] = float(r2) if np.isfinite(r2) else None
-        partners = sorted({p["parameter"] for v in conf.values() for p in v.get("partners", [])})
-        # confounded: the model's parameters can mimic it (R² > 0.99) and, with them free,
-        # it is not determined away from its null (a strongly correlated but well-measured
-        # parameter, like A against μmin, is not confounded)
-        z = _wald(c, eff)
-        c["wald_z"] = z
-        if np.isfinite(r2) and r2 > CONFOUNDED_R2 and not z >= WALD_Z:
-            # no partner listed: no information on it at all, so every model parameter is one
-            c["confounded_with"] = partners or [n for n in base.get("free", []) if n not in eff.parameters]
-            c["mimicked"] = True  # by the model's own parameters (not a tie with another candidate)
-        else:
-            c["confounded_with"] = []
-            c["mimicked"] = False
+        dnll = _score_likelihood(c, base, eff, alpha_c)
+        _score_gaps(c, base, fold_names)
+        _score_confounding(c, base, eff)
         if dnll < -1e-6 * max(base["chi2"], 1.0):
             c["significant"] = False
             c["heldout_gap_after_um"] = c["gap_after_um"] = float("nan")
             c["worse"] = True
-        c["dr"] = c["r"] - r0
-        c["estimate_text"] = ", ".join(
-            f"{n} = {estimate_text(c['estimates'][n])}" for n in (eff.parameters if eff.nested else c.get("free", []))
-            if n in c["estimates"])
-        c["named"] = False
-        c["closed_fraction"] = closed_fraction(c)
-        # the held-out gap at the encoding's floor (as the verdict's tolerance reads it)
-        noise = base["gap"].get("noise_um", 0.0)
-        c["heldout_gap_ratio_before"] = float(c["heldout_gap_before_um"] / noise) if noise > 0 else float("nan")
-        c["at_floor"] = bool(c["heldout_gap_ratio_before"] <= opts.gap_tolerance)
-        c["explained_share"] = explained_share(c, base)
-        c["closes"] = closes_gap(c)
-        c["note"] = c["estimate_text"]
-        stopped = (f"refit stopped after {c.get('iterations')} iterations in all: even {GIVE_UP_MARGIN:g}× the "
-                   "gain its solver still promised could not make it significant; its Δnll is a lower "
-                   "bound, the p-value an upper bound") if c.get("status") == GAVE_UP else ""
-        if stopped:
-            c["note"] += f" ({stopped})"
-        if c["heldout_error"]:
-            c["note"] += f" (no held-out gap: {c['heldout_error']})"
-        elif c.get("heldout_unverified_folds"):
-            c["note"] += (f" (held-out gap: {c['heldout_unverified_folds']} fold(s) from the linear "
-                          "leave-out step, which the model did not confirm there; their refit failed)")
-        if c.get("status") == NOT_DIFFERENTIABLE:
-            c["note"] = ("the refit could not start: where it began, the last bit of a parameter moves the "
-                         "residuals by more than their noise (the model is not differentiable there); no "
-                         "evidence; the values at its start: " + c["estimate_text"])
-        elif c.get("worse"):
-            c["note"] = ("the refit ended worse than the current model (a local solution): no evidence; "
-                         if not stopped else f"worse than the current model when its {stopped}: no evidence; "
-                         ) + c["estimate_text"]
+        _score_closing(c, base, eff, opts)
+        c["note"] = _note(c)
         m = c.get("at_magnitude")
         if m and not c["significant"]:
-            if (m.get("absorbed") or m.get("better")) and np.isfinite(m.get("chi2", float("nan"))):
-                # judged again against the best fit this round found: the current model
-                # re-solved here, or the refit itself (the worker knew only last round's χ²)
-                ref = min(base["chi2"], c["chi2"])
-                m["delta_nll"] = 0.5 * (m["chi2"] - ref)
-                if m["delta_nll"] > m["needed_delta_nll"]:
-                    m.update(absorbed=False, better=False, partners=[], lower_bound=False)
-                elif m["delta_nll"] < -m["needed_delta_nll"]:
-                    m.update(absorbed=False, better=True, partners=[])
-                elif m.get("better"):
-                    # better only against the worker's reference: within the quantile of
-                    # this round's best, so the check's own verdict (moves only: the
-                    # standard errors there were not computed for a better fit)
-                    for x in m.get("moved", []):
-                        x["partner"] = bool(abs(x["z"]) >= MAGNITUDE_MOVED_Z)
-                    m.update(absorbed=True, better=False,
-                             partners=[x["parameter"] for x in m.get("moved", []) if x["partner"]])
+            _judge_magnitude_again(m, base, c)
             c["note"] += f" ({_magnitude_text(m)})"
             if m.get("absorbed") and m.get("partners") and not c["confounded_with"]:
                 # not seen near its null, yet absorbed at its realistic size: the model's
-                # own parameters stand in for it there (candidates._at_magnitude)
+                # own parameters stand in for it there (magnitude_check.at_magnitude)
                 c["confounded_with"] = list(m["partners"])
         out.append(c)
     return out
 
 
+def _score_likelihood(c: dict, base: dict, eff, alpha_c: float):
+    """The likelihood ratio, ΔAIC, ΔBIC, p-value and significance of ``c`` against ``base``
+    (``alpha_c``: the Bonferroni-divided level); returns the Δnll."""
+    n_obs = base["n_obs"]
+    dk = c["n_eff"] - base["n_eff"]
+    dnll = 0.5 * (base["chi2"] - c["chi2"])
+    c["delta_nll"] = float(dnll)
+    c["delta_aic"] = float(-2 * dnll + 2 * dk)
+    c["delta_bic"] = float(-2 * dnll + dk * math.log(max(n_obs, 2)))
+    if eff.nested and dk > 0:
+        c["p_value"] = float(stats.chi2.sf(max(2 * dnll, 0.0), dk))
+        sig = c["p_value"] < alpha_c and c["delta_bic"] < 0
+    else:
+        c["p_value"] = None
+        sig = c["delta_aic"] < LAW_DELTA_AIC
+    c["significant"] = bool(sig)
+    return dnll
+
+
+def _score_gaps(c: dict, base: dict, fold_names) -> None:
+    """The gaps before and after ``c``, fitted and held out, in µm and in noise units, with
+    the held-out likelihood gain in all and by fold."""
+    c["gap_before_um"] = base["gap"]["gap_um"]
+    c["gap_after_um"] = c["gap"]["gap_um"]
+    c["heldout_gap_before_um"] = base["heldout"]["gap_um"]
+    c["heldout_gap_after_um"] = c["heldout"]["gap_um"]
+    # folds the linear leave-out step did not hold for (refitted), and why a held-out
+    # gap is missing, if it is
+    c["heldout_refitted_folds"] = c["heldout"].get("refitted_folds")
+    c["heldout_unverified_folds"] = c["heldout"].get("unverified_folds")
+    c["heldout_error"] = c["heldout"].get("error")
+    c["heldout_delta_nll"] = heldout_dnll(base["heldout"], c["heldout"])
+    c["heldout_by_fold"], c["heldout_set_aside"] = heldout_by_fold(base, c, fold_names)
+    # the same gaps in noise units (1: at the noise)
+    for key, before, after in (("gap_sigma", base["gap"], c["gap"]),
+                               ("heldout_gap_sigma", base["heldout"], c["heldout"])):
+        c[key + "_before"], c[key + "_after"] = before.get("gap_sigma"), after.get("gap_sigma")
+
+
+def _score_confounding(c: dict, base: dict, eff) -> None:
+    """How much of ``c`` the model's own parameters can mimic (R²), its Wald distance from
+    its null, and so whether it is confounded with them, and with which."""
+    conf = c.get("confounding") or {}
+    r2 = max((v.get("r2", 0.0) for v in conf.values()), default=0.0)
+    if any(v.get("confounded") for v in conf.values()):
+        r2 = max(r2, 1.0)
+    c["r2_with_model"] = float(r2) if np.isfinite(r2) else None
+    partners = sorted({p["parameter"] for v in conf.values() for p in v.get("partners", [])})
+    # confounded: the model's parameters can mimic it (R² > 0.99) and, with them free,
+    # it is not determined away from its null (a strongly correlated but well-measured
+    # parameter, like A against μmin, is not confounded)
+    z = _wald(c, eff)
+    c["wald_z"] = z
+    if np.isfinite(r2) and r2 > CONFOUNDED_R2 and not z >= WALD_Z:
+        # no partner listed: no information on it at all, so every model parameter is one
+        c["confounded_with"] = partners or [n for n in base.get("free", []) if n not in eff.parameters]
+        c["mimicked"] = True  # by the model's own parameters (not a tie with another candidate)
+    else:
+        c["confounded_with"] = []
+        c["mimicked"] = False
+
+
+def _score_closing(c: dict, base: dict, eff, opts) -> None:
+    """The residual change, the estimates' text, and how much of the gap ``c`` closes
+    (:func:`closes_gap`), the held-out gap read against the encoding's floor."""
+    c["dr"] = c["r"] - base["r"]
+    c["estimate_text"] = ", ".join(
+        f"{n} = {estimate_text(c['estimates'][n])}" for n in (eff.parameters if eff.nested else c.get("free", []))
+        if n in c["estimates"])
+    c["named"] = False
+    c["closed_fraction"] = closed_fraction(c)
+    # the held-out gap at the encoding's floor (as the verdict's tolerance reads it)
+    noise = base["gap"].get("noise_um", 0.0)
+    c["heldout_gap_ratio_before"] = float(c["heldout_gap_before_um"] / noise) if noise > 0 else float("nan")
+    c["at_floor"] = bool(c["heldout_gap_ratio_before"] <= opts.gap_tolerance)
+    c["explained_share"] = explained_share(c, base)
+    c["closes"] = closes_gap(c)
+
+
+def _note(c: dict) -> str:
+    """The report's note on a scored candidate: its estimates, and what stopped, failed or
+    went missing on the way."""
+    note = c["estimate_text"]
+    stopped = (f"refit stopped after {c.get('iterations')} iterations in all: even {GIVE_UP_MARGIN:g}× the "
+               "gain its solver still promised could not make it significant; its Δnll is a lower "
+               "bound, the p-value an upper bound") if c.get("status") == GAVE_UP else ""
+    if stopped:
+        note += f" ({stopped})"
+    if c["heldout_error"]:
+        note += f" (no held-out gap: {c['heldout_error']})"
+    elif c.get("heldout_unverified_folds"):
+        note += (f" (held-out gap: {c['heldout_unverified_folds']} fold(s) from the linear "
+                 "leave-out step, which the model did not confirm there; their refit failed)")
+    if c.get("status") == NOT_DIFFERENTIABLE:
+        note = ("the refit could not start: where it began, the last bit of a parameter moves the "
+                "residuals by more than their noise (the model is not differentiable there); no "
+                "evidence; the values at its start: " + c["estimate_text"])
+    elif c.get("worse"):
+        note = ("the refit ended worse than the current model (a local solution): no evidence; "
+                if not stopped else f"worse than the current model when its {stopped}: no evidence; "
+                ) + c["estimate_text"]
+    return note
+
+
+def _judge_magnitude_again(m: dict, base: dict, c: dict) -> None:
+    """The check at the realistic magnitude ``m`` of ``c`` judged again against the best fit
+    this round found: the current model re-solved here, or the refit itself (the worker
+    knew only last round's χ²)."""
+    if not ((m.get("absorbed") or m.get("better")) and np.isfinite(m.get("chi2", float("nan")))):
+        return
+    ref = min(base["chi2"], c["chi2"])
+    m["delta_nll"] = 0.5 * (m["chi2"] - ref)
+    if m["delta_nll"] > m["needed_delta_nll"]:
+        m.update(absorbed=False, better=False, partners=[], lower_bound=False)
+    elif m["delta_nll"] < -m["needed_delta_nll"]:
+        m.update(absorbed=False, better=True, partners=[])
+    elif m.get("better"):
+        # better only against the worker's reference: within the quantile of
+        # this round's best, so the check's own verdict (moves only: the
+        # standard errors there were not computed for a better fit)
+        for x in m.get("moved", []):
+            x["partner"] = bool(abs(x["z"]) >= MAGNITUDE_MOVED_Z)
+        m.update(absorbed=True, better=False,
+                 partners=[x["parameter"] for x in m.get("moved", []) if x["partner"]])
+
+
 def _magnitude_text(m: dict) -> str:
-    """What the check at the realistic magnitude (:func:`identify.diagnosis.candidates._at_magnitude`) found."""
+    """What the check at the realistic magnitude (:func:`identify.diagnosis.magnitude_check.at_magnitude`) found."""
     at = f"{m['parameter']} = {display(m['parameter'], m['value'])}"
     if m.get("absorbed") is None:
         return f"not settled at its realistic magnitude {at}: {m.get('error') or m.get('status')}"

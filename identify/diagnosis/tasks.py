@@ -73,7 +73,7 @@ def expected_cost(task) -> int:
 
 def realistic_magnitude(eff, nulls) -> tuple | None:
     """(parameter, realistic value) of a one-parameter candidate, for the check of
-    :func:`identify.diagnosis.candidates._at_magnitude`; None where there is none to check (several
+    :func:`identify.diagnosis.magnitude_check.at_magnitude`; None where there is none to check (several
     parameters, as the topography's wavelength and phase, or a magnitude at the null)."""
     if len(eff.parameters) != 1 or not eff.magnitude or eff.magnitude[0] != eff.parameters[0]:
         return None

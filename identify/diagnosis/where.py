@@ -169,130 +169,173 @@ def where(prob, w: np.ndarray, r: np.ndarray | None = None) -> list:
     if r is None:
         r = prob.residuals(w)
     feats = feature_values(prob, w, r)
-    out: list[Misfit] = []
     runs = prob.runs
-    name = lambda i: runs[i].name  # noqa: E731
-    n_ev = sum(1 for rd in runs if rd.kind == "events")
-    # plateau levels
-    pl = feats["post_slip_level"]
-    if pl.value_um.size:
-        z = pl.value_um / pl.sigma_um
-        worst = int(np.argmax(np.abs(z)))
-        out.append(_chi2(z, pl.value_um.size - n_ev, "post_slip_level",
-                         f"largest {z[worst]:+.1f} σ in {name(pl.run[worst])}"))
-        num, den = 0.0, float(z @ z)
-        n_pairs = 0
-        for ri in np.unique(pl.run):
-            zz = z[pl.run == ri]
-            num += float(zz[1:] @ zz[:-1])
-            n_pairs += max(len(zz) - 1, 0)
-        if den > 0 and n_pairs > 2:
-            rho = num / den * len(z) / max(n_pairs, 1)
-            zst = rho * math.sqrt(n_pairs)
-            p = float(2 * stats.norm.sf(abs(zst)))
-            out.append(Misfit("post_slip_whiteness", misfit_sigma(p), p, rho,
-                              f"lag-1 autocorrelation {rho:+.2f} of the plateau levels within runs "
-                              f"({n_pairs} pairs)"))
-    # slip lengths: per-run mean (the sum telescopes: its noise comes from the end plateaus)
-    sl = feats["slip_length"]
-    if sl.value_um.size:
-        means, ses, conds, labels = [], [], [], []
-        for ri in np.unique(sl.run):
-            m = sl.run == ri
-            v = sl.value_um[m]
-            rd = runs[ri]
-            n = rd.plateau_n
-            se_sum = rd.sigma * 1e6 * math.sqrt(1 / max(n[0], 1) + 1 / max(n[-1], 1))
-            means.append(v.mean())
-            ses.append(se_sum / len(v))
-            conds.append([math.log(rd.Nb), math.log(rd.k), math.log(rd.fp)])
-            labels.append(name(ri))
-        means, ses = np.array(means), np.array(ses)
-        z = means / ses
-        worst = int(np.argmax(np.abs(z)))
-        out.append(_chi2(z, len(z), "slip_length",
-                         f"mean slip misfit {means[worst] * 1e3:+.0f} nm ({z[worst]:+.1f} σ) in {labels[worst]}"))
-        out.append(_condition_trend(means, ses, np.array(conds), "slip_length_vs_conditions", "slip-length misfit"))
-    # static friction (triggers)
-    st = feats["static_friction"]
-    if st.value_um.size:
-        zt = st.value_um / st.sigma_um
-        zr = []
-        labels = []
-        for ri in np.unique(st.run):
-            zr.append(zt[st.run == ri].mean())
-            labels.append(name(ri))
-        zr = np.array(zr)
-        worst = int(np.argmax(np.abs(zr)))
-        out.append(_chi2(zr, len(zr), "static_friction",
-                         f"mean trigger misfit {zr[worst]:+.1f} σ "
-                         f"({st.value_um[st.run == np.unique(st.run)[worst]].mean() * 1e3:+.0f} nm "
-                         f"of elongation) in {labels[worst]}"))
-        nx = prob.ev_next
-        pv = nx - 1
-        rest = (prob.ev_step[nx] - prob.ev_step[pv] - prob.ev_M[pv]) / prob.ev_fp[pv]
-        # between runs: each run's mean residual against its mean ln(rest), variance ≤ 1
-        # as above. (Within a run the rests barely vary, and the trigger encoding's own
-        # error near τ would dominate such a trend.)
-        lr = np.array([np.log(np.maximum(rest[st.run == ri], 1e-9)).mean() for ri in np.unique(st.run)])
-        if len(lr) > 2 and np.ptp(lr) > 0.1:
-            xc = lr - lr.mean()
-            b = float(xc @ zr) / float(xc @ xc)
-            zst = b * math.sqrt(float(xc @ xc))
-            p = float(2 * stats.norm.sf(abs(zst)))
-            out.append(Misfit("static_friction_vs_rest", misfit_sigma(p), p, zst,
-                              f"trend {b:+.2f} σ per e-fold of rest time across runs (z = {zst:+.1f})"))
-        # a ripple along the track, in friction-coefficient units
-        x_um = w[prob.i_x : prob.i_x + prob.P]
-        x_prev = x_um[prob.ev_prev[nx]] * LENGTH_UNIT
-        dx = float(prob.model.step(prob.params(w[: prob.n_theta])))
-        N = np.array([runs[i].Nb for i in st.run])
-        k = np.array([runs[i].k for i in st.run])
-        dmu = -zt * k * dx / (math.sqrt(12) * N)  # capacity the model misses, per unit load
-        wt = (math.sqrt(12) * N / (k * dx)) ** 2
-        # slips the model could not evaluate (NaN) are left out of the ripple and its scale
-        ok = np.isfinite(x_prev) & np.isfinite(dmu) & np.isfinite(wt)
-        x_prev, dmu, wt, rip_run = x_prev[ok], dmu[ok], wt[ok], st.run[ok]
-        span = float(np.ptp(x_prev)) if x_prev.size else 0.0
-        if x_prev.size > 8 and span > 0:
-            lo = 1e-6  # the topography candidate's shortest wavelength (identify.model.effects)
-            lams = np.geomspace(lo, max(span / 2, 2 * lo), 240)
-            d2, amp, ph = position_ripple(x_prev, dmu, wt, rip_run, lams)
-            # clusters (phase-locked slips) inflate the weights: scale by the residual dispersion
-            dof = max(len(dmu) - len(np.unique(rip_run)), 1)
-            disp = max(float(np.sum(wt * (dmu - _run_means(dmu, wt, rip_run)) ** 2)) / dof, 1.0)
-            peaks = ripple_peaks(d2)
-            i = peaks[0] if peaks else int(np.argmax(np.nan_to_num(d2, nan=-np.inf)))
-            n_ind = max(int(span / lo), 1)
-            q = d2[i] / disp
-            p = float(min(1.0, n_ind * math.exp(-q / 2)))
-            out.append(Misfit("position", misfit_sigma(p), p, q,
-                              f"ripple of the static friction along the track: λ = {lams[i] * 1e6:.2f} µm, "
-                              f"amplitude {amp[i]:.3g} (μ units)",
-                              extra=dict(wavelength_m=float(lams[i]), amplitude=float(amp[i]), phase=float(ph[i]),
-                                         peaks=[dict(wavelength_m=float(lams[j]), amplitude=float(amp[j]),
-                                                     phase=float(ph[j]), delta_chi2=float(d2[j])) for j in peaks])))
-    # staircase slopes
-    ss = feats["stick_slope"]
-    if ss.value_um.size:
-        z = ss.value_um / ss.sigma_um
-        worst = int(np.argmax(np.abs(z)))
-        out.append(_chi2(z, len(z), "stick_slope", f"largest {z[worst]:+.1f} σ in {name(ss.run[worst])}"))
-    # residuals against time within runs
-    if pl.value_um.size > 3:
-        z = pl.value_um / pl.sigma_um
-        b, t, p = _cluster_trend(z, prob.pl_mean_t, pl.run) if len(np.unique(pl.run)) > 1 else (0.0, 0.0, 1.0)
-        if np.isfinite(t):
-            out.append(Misfit("time", misfit_sigma(p), p, t,
-                              f"plateau-level trend {b:+.3g} σ/s within runs (t = {t:+.1f})"))
-    cr = feats["creep_level"]
-    if cr.value_um.size:
-        z = cr.value_um / cr.sigma_um
-        worst = int(np.argmax(np.abs(z)))
-        out.append(_chi2(z, len(z), "creep_level",
-                         f"{cr.value_um[worst] * 1e3:+.0f} nm ({z[worst]:+.1f} σ) in {name(cr.run[worst])}"))
+    out: list[Misfit] = []
+    out += _plateau_misfits(feats["post_slip_level"], runs)
+    out += _slip_length_misfits(feats["slip_length"], runs)
+    out += _static_friction_misfits(prob, w, feats["static_friction"])
+    out += _stick_slope_misfits(feats["stick_slope"], runs)
+    out += _time_misfits(prob, feats["post_slip_level"])
+    out += _creep_misfits(feats["creep_level"], runs)
     out.sort(key=lambda m: -(m.misfit_sigma if np.isfinite(m.misfit_sigma) else -1))
     return out
+
+
+def _plateau_misfits(pl, runs) -> list:
+    """``post_slip_level`` (χ² of the plateau levels) and ``post_slip_whiteness`` (their
+    lag-1 autocorrelation within runs: an accumulating slip-length error makes them wander)."""
+    if not pl.value_um.size:
+        return []
+    n_ev = sum(1 for rd in runs if rd.kind == "events")
+    z = pl.value_um / pl.sigma_um
+    worst = int(np.argmax(np.abs(z)))
+    out = [_chi2(z, pl.value_um.size - n_ev, "post_slip_level",
+                 f"largest {z[worst]:+.1f} σ in {runs[pl.run[worst]].name}")]
+    num, den = 0.0, float(z @ z)
+    n_pairs = 0
+    for ri in np.unique(pl.run):
+        zz = z[pl.run == ri]
+        num += float(zz[1:] @ zz[:-1])
+        n_pairs += max(len(zz) - 1, 0)
+    if den > 0 and n_pairs > 2:
+        rho = num / den * len(z) / max(n_pairs, 1)
+        zst = rho * math.sqrt(n_pairs)
+        p = float(2 * stats.norm.sf(abs(zst)))
+        out.append(Misfit("post_slip_whiteness", misfit_sigma(p), p, rho,
+                          f"lag-1 autocorrelation {rho:+.2f} of the plateau levels within runs "
+                          f"({n_pairs} pairs)"))
+    return out
+
+
+def _slip_length_misfits(sl, runs) -> list:
+    """``slip_length`` (each run's mean slip misfit: the sum telescopes, so its noise comes
+    from the end plateaus) and ``slip_length_vs_conditions`` (those means against the runs')."""
+    if not sl.value_um.size:
+        return []
+    means, ses, conds, labels = [], [], [], []
+    for ri in np.unique(sl.run):
+        m = sl.run == ri
+        v = sl.value_um[m]
+        rd = runs[ri]
+        n = rd.plateau_n
+        se_sum = rd.sigma * 1e6 * math.sqrt(1 / max(n[0], 1) + 1 / max(n[-1], 1))
+        means.append(v.mean())
+        ses.append(se_sum / len(v))
+        conds.append([math.log(rd.Nb), math.log(rd.k), math.log(rd.fp)])
+        labels.append(runs[ri].name)
+    means, ses = np.array(means), np.array(ses)
+    z = means / ses
+    worst = int(np.argmax(np.abs(z)))
+    return [_chi2(z, len(z), "slip_length",
+                  f"mean slip misfit {means[worst] * 1e3:+.0f} nm ({z[worst]:+.1f} σ) in {labels[worst]}"),
+            _condition_trend(means, ses, np.array(conds), "slip_length_vs_conditions", "slip-length misfit")]
+
+
+def _static_friction_misfits(prob, w: np.ndarray, st) -> list:
+    """``static_friction`` (each run's mean trigger residual), then its trend against rest
+    time across runs and its ripple along the track (:func:`_rest_trend`, :func:`_position_misfits`)."""
+    if not st.value_um.size:
+        return []
+    zt = st.value_um / st.sigma_um
+    zr = []
+    labels = []
+    for ri in np.unique(st.run):
+        zr.append(zt[st.run == ri].mean())
+        labels.append(prob.runs[ri].name)
+    zr = np.array(zr)
+    worst = int(np.argmax(np.abs(zr)))
+    out = [_chi2(zr, len(zr), "static_friction",
+                 f"mean trigger misfit {zr[worst]:+.1f} σ "
+                 f"({st.value_um[st.run == np.unique(st.run)[worst]].mean() * 1e3:+.0f} nm "
+                 f"of elongation) in {labels[worst]}")]
+    return out + _rest_trend(prob, st, zr) + _position_misfits(prob, w, st, zt)
+
+
+def _rest_trend(prob, st, zr: np.ndarray) -> list:
+    """``static_friction_vs_rest``: the runs' mean trigger residuals ``zr`` against their mean
+    ln(rest time), between runs (none where the rests barely differ)."""
+    nx = prob.ev_next
+    pv = nx - 1
+    rest = (prob.ev_step[nx] - prob.ev_step[pv] - prob.ev_M[pv]) / prob.ev_fp[pv]
+    # between runs: each run's mean residual against its mean ln(rest), variance ≤ 1
+    # as above. (Within a run the rests barely vary, and the trigger encoding's own
+    # error near τ would dominate such a trend.)
+    lr = np.array([np.log(np.maximum(rest[st.run == ri], 1e-9)).mean() for ri in np.unique(st.run)])
+    if not (len(lr) > 2 and np.ptp(lr) > 0.1):
+        return []
+    xc = lr - lr.mean()
+    b = float(xc @ zr) / float(xc @ xc)
+    zst = b * math.sqrt(float(xc @ xc))
+    p = float(2 * stats.norm.sf(abs(zst)))
+    return [Misfit("static_friction_vs_rest", misfit_sigma(p), p, zst,
+                   f"trend {b:+.2f} σ per e-fold of rest time across runs (z = {zst:+.1f})")]
+
+
+def _position_misfits(prob, w: np.ndarray, st, zt: np.ndarray) -> list:
+    """``position``: a ripple of the static friction along the track common to every run, in
+    friction-coefficient units (p from the periodogram's peak, Bonferroni over wavelengths)."""
+    runs = prob.runs
+    nx = prob.ev_next
+    x_um = w[prob.i_x : prob.i_x + prob.P]
+    x_prev = x_um[prob.ev_prev[nx]] * LENGTH_UNIT
+    dx = float(prob.model.step(prob.params(w[: prob.n_theta])))
+    N = np.array([runs[i].Nb for i in st.run])
+    k = np.array([runs[i].k for i in st.run])
+    dmu = -zt * k * dx / (math.sqrt(12) * N)  # capacity the model misses, per unit load
+    wt = (math.sqrt(12) * N / (k * dx)) ** 2
+    # slips the model could not evaluate (NaN) are left out of the ripple and its scale
+    ok = np.isfinite(x_prev) & np.isfinite(dmu) & np.isfinite(wt)
+    x_prev, dmu, wt, rip_run = x_prev[ok], dmu[ok], wt[ok], st.run[ok]
+    span = float(np.ptp(x_prev)) if x_prev.size else 0.0
+    if not (x_prev.size > 8 and span > 0):
+        return []
+    lo = 1e-6  # the topography candidate's shortest wavelength (identify.model.effects)
+    lams = np.geomspace(lo, max(span / 2, 2 * lo), 240)
+    d2, amp, ph = position_ripple(x_prev, dmu, wt, rip_run, lams)
+    # clusters (phase-locked slips) inflate the weights: scale by the residual dispersion
+    dof = max(len(dmu) - len(np.unique(rip_run)), 1)
+    disp = max(float(np.sum(wt * (dmu - _run_means(dmu, wt, rip_run)) ** 2)) / dof, 1.0)
+    peaks = ripple_peaks(d2)
+    i = peaks[0] if peaks else int(np.argmax(np.nan_to_num(d2, nan=-np.inf)))
+    n_ind = max(int(span / lo), 1)
+    q = d2[i] / disp
+    p = float(min(1.0, n_ind * math.exp(-q / 2)))
+    return [Misfit("position", misfit_sigma(p), p, q,
+                   f"ripple of the static friction along the track: λ = {lams[i] * 1e6:.2f} µm, "
+                   f"amplitude {amp[i]:.3g} (μ units)",
+                   extra=dict(wavelength_m=float(lams[i]), amplitude=float(amp[i]), phase=float(ph[i]),
+                              peaks=[dict(wavelength_m=float(lams[j]), amplitude=float(amp[j]),
+                                          phase=float(ph[j]), delta_chi2=float(d2[j])) for j in peaks]))]
+
+
+def _stick_slope_misfits(ss, runs) -> list:
+    """``stick_slope``: χ² of the staircase slopes."""
+    if not ss.value_um.size:
+        return []
+    z = ss.value_um / ss.sigma_um
+    worst = int(np.argmax(np.abs(z)))
+    return [_chi2(z, len(z), "stick_slope", f"largest {z[worst]:+.1f} σ in {runs[ss.run[worst]].name}")]
+
+
+def _time_misfits(prob, pl) -> list:
+    """``time``: the trend of the plateau residuals against time within runs."""
+    if not pl.value_um.size > 3:
+        return []
+    z = pl.value_um / pl.sigma_um
+    b, t, p = _cluster_trend(z, prob.pl_mean_t, pl.run) if len(np.unique(pl.run)) > 1 else (0.0, 0.0, 1.0)
+    if not np.isfinite(t):
+        return []
+    return [Misfit("time", misfit_sigma(p), p, t, f"plateau-level trend {b:+.3g} σ/s within runs (t = {t:+.1f})")]
+
+
+def _creep_misfits(cr, runs) -> list:
+    """``creep_level``: χ² of the creep runs' steady levels."""
+    if not cr.value_um.size:
+        return []
+    z = cr.value_um / cr.sigma_um
+    worst = int(np.argmax(np.abs(z)))
+    return [_chi2(z, len(z), "creep_level",
+                  f"{cr.value_um[worst] * 1e3:+.0f} nm ({z[worst]:+.1f} σ) in {runs[cr.run[worst]].name}")]
 
 
 def with_regime(misfits: list, check) -> list:

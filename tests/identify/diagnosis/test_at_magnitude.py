@@ -1,4 +1,4 @@
-"""The check of a candidate held at its realistic magnitude (candidates._at_magnitude),
+"""The check of a candidate held at its realistic magnitude (magnitude_check.at_magnitude),
 on a stand-in problem whose χ² there is set by the test: fits as well (absorbed, with the
 parameters it moves as partners), excluded, or better than the refit itself."""
 
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from identify.diagnosis.candidates import CandidateTask, _at_magnitude
+from identify.diagnosis.candidates import CandidateTask
+from identify.diagnosis.magnitude_check import at_magnitude
 from identify.fitting.problem import ThetaMap
 
 NEED = float(stats.chi2.isf(0.01, 1))  # 6.63: the χ²₁ quantile at the screen's p
@@ -71,7 +72,7 @@ def _check(chi2_at, shift=0.0, refit_chi2=1000.0, status="Solve_Succeeded", se_r
                          extra=("c_extra",), null_chi2=1001.0, magnitude=("c_extra", 2e-5))
     w = prob.theta.to_scaled({"A": 0.0236, "c_extra": 0.0})
     est = {"A": dict(value=0.0236, stderr=se_refit)}  # the refit's, c_extra free
-    out = _at_magnitude(task, prob, w, refit_chi2, est, evaluated="the refit's evaluation")
+    out = at_magnitude(task, prob, w, refit_chi2, est, evaluated="the refit's evaluation")
     return out, prob
 
 
@@ -168,7 +169,7 @@ def test_far_from_continuity_it_stops_only_when_decisive(spare, stops):
     task = CandidateTask(effect="load_offset", runs=[], law="exponential", values={}, free=("A",),
                          extra=("c_extra",), null_chi2=1001.0, magnitude=("c_extra", 2e-5))
     w = prob.theta.to_scaled({"A": 0.0236, "c_extra": 0.0})
-    out = _at_magnitude(task, prob, w, 1000.0, {"A": dict(value=0.0236, stderr=0.0035)})
+    out = at_magnitude(task, prob, w, 1000.0, {"A": dict(value=0.0236, stderr=0.0035)})
     assert prob.asked == [False, stops]  # (never in the first GIVE_UP_AFTER iterations)
     if stops:
         assert out["absorbed"] is False and out["lower_bound"] is True
@@ -186,7 +187,7 @@ def test_the_refits_evaluation_is_not_reused_once_the_arcs_were_resized():
     task = CandidateTask(effect="damping", runs=[], law="exponential", values={}, free=("A",),
                          extra=("c_extra",), null_chi2=1001.0, magnitude=("c_extra", 2e-5))
     w = prob.theta.to_scaled({"A": 0.0236, "c_extra": 0.0})
-    out = _at_magnitude(task, prob, w, 1000.0, {"A": dict(value=0.0236, stderr=0.0035)},
+    out = at_magnitude(task, prob, w, 1000.0, {"A": dict(value=0.0236, stderr=0.0035)},
                         evaluated="the refit's evaluation")
     assert out["absorbed"] and out["stderr_checked"] and prob.evaluated_seen is None
 
@@ -195,10 +196,10 @@ def test_the_runs_left_out_are_read_at_the_held_values(monkeypatch):
     """With runs left out for their regime, the check reads them at the values it held
     (the effect at its magnitude, the model's own parameters as refitted there) and says
     how far that point is from continuity; without them it reads nothing."""
-    import identify.diagnosis.candidates as cand
+    import identify.diagnosis.magnitude_check as check
 
     seen = []
-    monkeypatch.setattr(cand, "regime_of_left_out",
+    monkeypatch.setattr(check, "regime_of_left_out",
                         lambda task, values: seen.append(dict(values)) or dict(df=1, chi2=0.0))
     prob = _Problem(1000.5, TO_0018)
     prob.evaluate = lambda w: (np.zeros(3), np.array([2e-4, -7e-4]))
@@ -206,11 +207,11 @@ def test_the_runs_left_out_are_read_at_the_held_values(monkeypatch):
                          free=("A",), extra=("c_extra",), null_chi2=1001.0, magnitude=("c_extra", 2e-5),
                          regime_runs=["a run left out"])
     w = prob.theta.to_scaled({"A": 0.0236, "c_extra": 0.0})
-    out = _at_magnitude(task, prob, w, 1000.0, {"A": dict(value=0.0236, stderr=0.0035)})
+    out = at_magnitude(task, prob, w, 1000.0, {"A": dict(value=0.0236, stderr=0.0035)})
     (values,) = seen
     assert values["c_extra"] == pytest.approx(2e-5) and values["A"] == pytest.approx(0.018)
     assert values["vc"] == 1e-6  # (the fixed ones as the task has them)
     assert out["regime"] == dict(df=1, chi2=0.0) and out["continuity_um"] == pytest.approx(7e-4)
-    out = _at_magnitude(CandidateTask(**{**task.__dict__, "regime_runs": []}), _Problem(1000.5, TO_0018), w, 1000.0,
+    out = at_magnitude(CandidateTask(**{**task.__dict__, "regime_runs": []}), _Problem(1000.5, TO_0018), w, 1000.0,
                         {"A": dict(value=0.0236, stderr=0.0035)})
     assert "regime" not in out and "continuity_um" not in out and len(seen) == 1

@@ -80,11 +80,11 @@ def test_where_leaves_out_a_slip_the_model_could_not_evaluate(small_fit):
 def test_confounding_of_a_non_finite_information_says_so():
     from types import SimpleNamespace
 
-    from identify.diagnosis.candidates import _confounding
+    from identify.diagnosis.refit_readings import confounding
 
     prob = SimpleNamespace(theta=SimpleNamespace(names=["mu_max", "A", "dc"]),
                            information=lambda w, evaluated=None: np.full((3, 3), np.nan))
-    out = _confounding(prob, None, None, ["dc"])
+    out = confounding(prob, None, None, ["dc"])
     assert np.isnan(out["dc"]["r2"]) and "not finite" in out["dc"]["note"]
 
 
@@ -161,26 +161,27 @@ def test_held_out_fold_left_linear_when_no_refit_is_asked(small_fit):
 def test_only_candidates_that_could_be_named_get_their_folds_refitted():
     from scipy import stats
 
-    from identify.diagnosis.candidates import SCREEN_P, CandidateTask, _could_be_named
+    from identify.diagnosis.candidates import SCREEN_P, CandidateTask
+    from identify.diagnosis.refit_screen import could_be_named
 
     t = CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=(), null_chi2=1000.0,
                       null_n_eff=10)
-    assert _could_be_named(t, 1000.0 - 10.0, 11, 100)  # Δnll 5, one parameter: p = 0.0016
-    assert not _could_be_named(t, 1000.0 - 1.0, 11, 100)  # Δnll 0.5: p = 0.32
-    assert not _could_be_named(t, 1000.0 - 5.0, 11, 100)  # p = 0.025: above α, never named
-    assert not _could_be_named(t, 1001.0, 11, 100)  # worse than the current model
+    assert could_be_named(t, 1000.0 - 10.0, 11, 100)  # Δnll 5, one parameter: p = 0.0016
+    assert not could_be_named(t, 1000.0 - 1.0, 11, 100)  # Δnll 0.5: p = 0.32
+    assert not could_be_named(t, 1000.0 - 5.0, 11, 100)  # p = 0.025: above α, never named
+    assert not could_be_named(t, 1001.0, 11, 100)  # worse than the current model
     edge = stats.chi2.isf(SCREEN_P, 1)
-    assert _could_be_named(t, 1000.0 - edge - 0.01, 11, 100) and not _could_be_named(t, 1000.0 - edge + 0.01, 11, 100)
+    assert could_be_named(t, 1000.0 - edge - 0.01, 11, 100) and not could_be_named(t, 1000.0 - edge + 0.01, 11, 100)
     # p = 0.0047 < α, but on 10⁴ observations ΔBIC = −8 + 9.2 > 0: the diagnosis would not name it
-    assert not _could_be_named(t, 1000.0 - 8.0, 11, 10_000) and _could_be_named(t, 1000.0 - 10.0, 11, 10_000)
+    assert not could_be_named(t, 1000.0 - 8.0, 11, 10_000) and could_be_named(t, 1000.0 - 10.0, 11, 10_000)
     # the diagnosis passes its own α
-    assert _could_be_named(CandidateTask(**{**t.__dict__, "screen_p": 0.05}), 1000.0 - 5.0, 11, 100)
+    assert could_be_named(CandidateTask(**{**t.__dict__, "screen_p": 0.05}), 1000.0 - 5.0, 11, 100)
     law = CandidateTask(effect="aging_logistic", runs=[], law="logistic", values={}, free=(), null_chi2=1000.0,
                         null_n_eff=10)
-    assert _could_be_named(law, 990.0, 11, 100) and not _could_be_named(law, 999.0, 11, 100)  # ΔAIC −8 / +1
+    assert could_be_named(law, 990.0, 11, 100) and not could_be_named(law, 999.0, 11, 100)  # ΔAIC −8 / +1
     # the current model itself, and a task that does not know the current χ², always are
-    assert _could_be_named(CandidateTask(effect=None, runs=[], law="exponential", values={}, free=()), 5e3, 3, 100)
-    assert _could_be_named(CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=()), 5e3, 3, 100)
+    assert could_be_named(CandidateTask(effect=None, runs=[], law="exponential", values={}, free=()), 5e3, 3, 100)
+    assert could_be_named(CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=()), 5e3, 3, 100)
 
 
 def test_a_refit_that_cannot_become_nameable_is_stopped():
@@ -191,25 +192,26 @@ def test_a_refit_that_cannot_become_nameable_is_stopped():
 
     from scipy import stats
 
-    from identify.diagnosis.candidates import GIVE_UP_AFTER, GIVE_UP_MARGIN, CandidateTask, _give_up
+    from identify.diagnosis.candidates import GIVE_UP_AFTER, GIVE_UP_MARGIN, CandidateTask
+    from identify.diagnosis.refit_screen import give_up_rule
 
     prob = SimpleNamespace(n_effective=lambda: 11, n_observations=lambda: 100, chi2_constant=lambda: 40.0)
     t = CandidateTask(effect="drift", runs=[], law="exponential", values={}, free=(), null_chi2=1000.0,
                       null_n_eff=10)
-    stop = _give_up(t, prob)
+    stop = give_up_rule(t, prob)
     need = stats.chi2.isf(t.screen_p, 1)  # 6.6 > ln(100) = 4.6
     half = lambda gain: 0.5 * (1000.0 - 40.0 - gain)  # noqa: E731 (½ r·r after a χ² gain)
     it = GIVE_UP_AFTER + 1
     assert stop(it, half(1.0), 0.1) and not stop(GIVE_UP_AFTER, half(1.0), 0.1)
-    basin = _give_up(t, prob, after=1)  # a basin of several (BASIN_GIVE_UP_AFTER)
+    basin = give_up_rule(t, prob, after=1)  # a basin of several (BASIN_GIVE_UP_AFTER)
     assert basin(2, half(1.0), 0.1) and not basin(1, half(1.0), 0.1)
     # 1 gained, and the promise could bring it to the threshold: go on
     assert not stop(it, half(1.0), (need - 1.0) / (2 * GIVE_UP_MARGIN) + 0.01)
     assert stop(it, half(1.0), (need - 1.0) / (2 * GIVE_UP_MARGIN) - 0.01)
     assert not stop(it, half(need + 0.1), 0.0)  # already nameable
-    assert _give_up(CandidateTask(effect=None, runs=[], law="exponential", values={}, free=()), prob) is None
+    assert give_up_rule(CandidateTask(effect=None, runs=[], law="exponential", values={}, free=()), prob) is None
     # a law's refit starts far off: never stopped
-    assert _give_up(CandidateTask(effect="aging_logistic", runs=[], law="logistic", values={}, free=(),
+    assert give_up_rule(CandidateTask(effect="aging_logistic", runs=[], law="logistic", values={}, free=(),
                                   null_chi2=1000.0, null_n_eff=10), prob) is None
 
 
@@ -433,10 +435,10 @@ MAX_IT = "Maximum_Iterations_Exceeded"
     ([(MAX_IT, 500.0), RuntimeError("arc failed")], 2, MAX_IT),
 ])
 def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds, status):
-    from identify.diagnosis.candidates import EXTRA_ROUNDS, _solve_on
+    from identify.diagnosis.refit_solve import EXTRA_ROUNDS, solve_on
 
     prob = _FakeProblem(script)
-    sol = _solve_on(prob, 0, 1000.0)
+    sol = solve_on(prob, 0, 1000.0)
     assert len(prob.starts) == rounds <= EXTRA_ROUNDS + 1
     assert prob.starts[1:] == list(range(1, rounds))  # each round from where the last stopped
     done = [s for s in script[:rounds] if not isinstance(s, Exception)]
@@ -449,7 +451,7 @@ def test_an_unconverged_refit_that_still_gains_is_continued(script, rounds, stat
 def test_a_refit_already_past_the_naming_screen_gets_more_rounds():
     """Measured (rejuvenation withheld at dc = 0.1 µm): still gaining after three rounds,
     p = 1e-68, and so not named; with more iterations it converged and was named."""
-    from identify.diagnosis.candidates import EXTRA_ROUNDS, EXTRA_ROUNDS_NAMEABLE, _solve_on
+    from identify.diagnosis.refit_solve import EXTRA_ROUNDS, EXTRA_ROUNDS_NAMEABLE, solve_on
 
     gaining = [(MAX_IT, 1000.0 - 50.0 * i) for i in range(1, 12)]
     for nameable, rounds in ((None, EXTRA_ROUNDS + 1), (lambda f: False, EXTRA_ROUNDS + 1),
@@ -459,11 +461,11 @@ def test_a_refit_already_past_the_naming_screen_gets_more_rounds():
                              (lambda f: f <= 850.0, EXTRA_ROUNDS_NAMEABLE + 1),
                              (lambda f: f <= 800.0, EXTRA_ROUNDS + 1)):
         prob = _FakeProblem(gaining)
-        sol = _solve_on(prob, 0, 1000.0, nameable)
+        sol = solve_on(prob, 0, 1000.0, nameable)
         assert len(prob.starts) == rounds and sol["status"] == MAX_IT
     assert EXTRA_ROUNDS_NAMEABLE > EXTRA_ROUNDS
     prob = _FakeProblem([(MAX_IT, 900.0), (MAX_IT, 800.0), ("Solve_Succeeded", 700.0)] + gaining)
-    assert _solve_on(prob, 0, 1000.0, lambda f: True)["status"] == "Solve_Succeeded" and len(prob.starts) == 3
+    assert solve_on(prob, 0, 1000.0, lambda f: True)["status"] == "Solve_Succeeded" and len(prob.starts) == 3
 
 
 @pytest.mark.parametrize("status, named", [("Solve_Succeeded", True), ("Stalled_Within_Tolerance", True),
@@ -584,7 +586,7 @@ def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, mo
     tasks, _ = candidate_tasks(["topography"], current, prob.runs, prob.opts, [], DiagnosisOptions(), 1,
                                where_hint=hint)
     solved, ends = [], []
-    real = cand._solve_on
+    real = cand.solve_on
 
     def spy(p, w0, f0, nameable=None):
         solved.append(float(w0[list(p.theta.names).index("topo_wavelength")]))
@@ -600,7 +602,7 @@ def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, mo
                         p.give_up(cand.BASIN_GIVE_UP_AFTER, half_null, 0.0)))
         return spy(p, w0, f0, nameable)
 
-    monkeypatch.setattr(cand, "_solve_on", spy_screen)
+    monkeypatch.setattr(cand, "solve_on", spy_screen)
     out = cand.run_candidate(tasks[1])
     assert out["ok"] and len(solved) == 2 and solved[0] != solved[1]  # one start per basin
     assert screens == [(cand.BASIN_GIVE_UP_FEAS, True, False)] * 2
@@ -1425,7 +1427,7 @@ def test_a_refit_that_ends_worse_than_the_current_model_tries_the_start_it_passe
         f = (10.0 * half_null if first_worse else 0.5 * half_null) if len(solved) == 1 else 0.9 * half_null
         return dict(w=np.array(w0, float), f=f, status="Solve_Succeeded", success=True, iterations=1, rounds=[])
 
-    monkeypatch.setattr(cand, "_solve_on", fake)
+    monkeypatch.setattr(cand, "solve_on", fake)
     out = cand.run_candidate(task)
     assert out["error"] is None, out
     if first_worse:

@@ -48,7 +48,7 @@ def test_an_estimate_on_its_bound_says_so_rather_than_giving_a_value_with_an_err
 
     import numpy as np
 
-    from identify.diagnosis.candidates import _estimates
+    from identify.diagnosis.refit_readings import parameter_estimates
     from identify.diagnosis.scores import estimate_text
     from identify.fitting.problem import ThetaMap
     from identify.model.effects import get_effect
@@ -56,7 +56,7 @@ def test_an_estimate_on_its_bound_says_so_rather_than_giving_a_value_with_an_err
     tm = ThetaMap.build(("tau", "c_extra"), {"c_extra": get_effect("damping").bounds["c_extra"]})
     th = np.array([tm.to_scaled({"tau": 0.07, "c_extra": 0.0})[0], tm.lo[1]])
     prob = SimpleNamespace(theta=tm, n_theta=2, covariance=lambda w, robust, evaluated: np.eye(2) * 1e-4)
-    est = _estimates(prob, th, None)
+    est = parameter_estimates(prob, th, None)
     assert est["tau"]["at_bound"] is None and "±" in estimate_text(est["tau"])
     assert est["c_extra"]["at_bound"] == "lower" and est["c_extra"]["bound"] == -3e-7
     text = estimate_text(est["c_extra"])
