@@ -39,15 +39,18 @@ below a plateau's ~15 nm precision at 90 nm noise, ~10 σ on a noiseless trace.
 Derivatives: the residuals and constraints are explicit in w and the arc outputs Y; the
 arcs' Jacobians (central differences of the compiled arc) are chain-ruled in a sparse
 block-diagonal product. The Gauss–Newton Hessian is JᵣᵀJᵣ.
+
+Where the parts live: the expressions and Functions in :mod:`identify.fitting.nlp_expressions`,
+the arcs inside them in :mod:`identify.fitting.arc_callback`, the scaled parameters in
+:mod:`identify.fitting.theta_map`; the solvers, the covariance and the trigger refinement
+are mixed in from their own modules. :class:`Problem` holds the layout, the trigger
+geometry, the numerics and the statistics.
 """
 
 from __future__ import annotations
 
 import logging
-import math
-import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -55,12 +58,13 @@ import scipy.sparse as sp
 
 from identify import interrupts
 from identify.fitting import best_so_far
-from identify.fitting.arcs import SHARE_FEAS, SHARE_TOL, SOLVE_REL_STEP, ArcFunctions, arc_functions, share_groups
+from identify.fitting.arcs import SHARE_FEAS, SHARE_TOL, SOLVE_REL_STEP, arc_functions
 from identify.fitting.covariance import Covariance
-from identify.fitting.exact_arcs import exact_arcs
 from identify.fitting.gauss_newton import GaussNewtonSQP
 from identify.fitting.ipopt import IpoptSolver
-from identify.fitting.triggers import START_SCALE_UM, TriggerRefinement, below_top
+from identify.fitting.nlp_expressions import NLPExpressions
+from identify.fitting.theta_map import ThetaMap as ThetaMap
+from identify.fitting.triggers import TriggerRefinement, below_top
 from identify.model.params import SPECS
 from identify.model.symbolic import LENGTH_UNIT, Model
 
@@ -77,152 +81,8 @@ log = logging.getLogger(__name__)
 EXACT_SHARE_TOL = 1e-4
 
 
-@dataclass
-class ThetaMap:
-    """Free parameters <-> scaled decision variables (log or linear)."""
-
-    names: tuple
-    scale: np.ndarray
-    log: np.ndarray
-    lo: np.ndarray  # scaled bounds
-    hi: np.ndarray
-
-    @classmethod
-    def build(cls, names, bounds: Mapping[str, tuple]):
-        scale, logs, lo, hi = [], [], [], []
-        for n in names:
-            s = SPECS[n]
-            b = bounds.get(n, (s.lower, s.upper))
-            scale.append(s.scale)
-            use_log = s.log and b[0] > 0
-            logs.append(use_log)
-            if use_log:
-                lo.append(math.log(b[0] / s.scale))
-                hi.append(math.log(b[1] / s.scale))
-            else:
-                lo.append(b[0] / s.scale)
-                hi.append(b[1] / s.scale)
-        return cls(tuple(names), np.array(scale), np.array(logs, bool), np.array(lo), np.array(hi))
-
-    def to_scaled(self, values: Mapping[str, float]) -> np.ndarray:
-        v = np.array([values[n] for n in self.names], float)
-        return np.where(self.log, np.log(np.maximum(v, 1e-300) / self.scale), v / self.scale)
-
-    def from_scaled(self, th, ops=np):
-        return [self.scale[i] * ops.exp(th[i]) if self.log[i] else self.scale[i] * th[i]
-                for i in range(len(self.names))]
-
-    def jacobian_diag(self, th: np.ndarray) -> np.ndarray:
-        """d value / d scaled, per parameter."""
-        vals = np.array(self.from_scaled(th))
-        return np.where(self.log, vals, self.scale)
-
-
-class _ArcCallback(ca.Callback):
-    """Arc values (5 × E) or Jacobians (2 × n_in·E) for all slips, memoised on the input
-    matrix: the solver asks for them at the same point from several Functions."""
-
-    def __init__(self, name: str, arcs: ArcFunctions, n_events: int, threads: int, jac: bool,
-                 counter: dict, rows=None, scheme: str = "central", jac_callback=None):
-        ca.Callback.__init__(self)
-        self.jac_callback = jac_callback  # (values only) the Jacobian callback: see has_jacobian
-        self.arcs, self.E, self.threads, self.jac = arcs, n_events, threads, jac
-        self.counter, self.rows, self.scheme, self.rel_step, self.share = counter, rows, scheme, None, None
-        self.own = None  # with ``share``: arcs that keep their own differences (bool per arc)
-        self._key: bytes | None = None
-        self._val = None
-        self.construct(name, {})
-
-    def get_n_in(self):
-        return 1
-
-    def get_n_out(self):
-        return 1
-
-    def get_sparsity_in(self, i):
-        return ca.Sparsity.dense(self.arcs.n_in, self.E)
-
-    def get_sparsity_out(self, i):
-        return ca.Sparsity.dense(2, self.arcs.n_in * self.E) if self.jac else ca.Sparsity.dense(5, self.E)
-
-    def _exact(self, A: np.ndarray) -> np.ndarray:
-        """Exact arc Jacobians (:mod:`identify.fitting.exact_arcs`), in the layout of
-        :meth:`ArcFunctions.evaluate_jacobian`; an arc the exact route cannot do (its
-        IDAS run or stop refinement failed) takes its central differences instead."""
-        arcs = self.arcs
-        rows = list(range(arcs.n_in)) if self.rows is None else list(self.rows)
-        Y = arcs.evaluate(A, self.threads)  # (remembered: the solver asked for the values first)
-        n = A.shape[1]
-        reps, inverse = np.arange(n), None
-        if self.share is not None and n > 1:
-            reps, inverse = share_groups(A, Y, rows, arcs.typical, self.share, own=self.own)
-        B, YB = A[:, reps], Y[:, reps]
-        _, J, ok = exact_arcs(arcs.model, arcs.input_names).jacobian(B, YB, rows, self.threads)
-        if not ok.all():
-            _, Jfd = arcs.evaluate_jacobian(B[:, ~ok], self.threads, rows=rows, scheme="central",
-                                            rel_step=SOLVE_REL_STEP)
-            J[:, :, ~ok] = Jfd.reshape(2, int((~ok).sum()), arcs.n_in).transpose(0, 2, 1)
-        if inverse is not None:
-            J = J[:, :, inverse]
-        return J.transpose(0, 2, 1).reshape(2, n * arcs.n_in)
-
-    def has_jacobian(self):
-        # the values' Jacobian is the Jacobian callback's, laid out per output entry:
-        # solvers that differentiate the NLP themselves (Ipopt's Lagrangian gradient)
-        # see the same arc derivatives as the explicit Jr, Jg
-        return not self.jac and getattr(self, "jac_callback", None) is not None
-
-    def get_jacobian(self, name, inames, onames, opts):
-        E, n_in = self.E, self.arcs.n_in
-        A = ca.MX.sym("A", n_in, E)
-        out = ca.MX.sym("Y", 5, E)
-        JA = ca.MX(_blockdiag_sparsity(2, n_in, E), ca.vec(self.jac_callback(A)))  # (2E × n_in·E)
-        # rows 2e + r of JA are entries 5e + r of vec(Y)
-        rows = (5 * np.arange(E)[:, None] + np.arange(2)[None, :]).ravel()
-        S = ca.DM(ca.Sparsity.triplet(5 * E, 2 * E, rows.tolist(), list(range(2 * E))), 1.0)
-        return ca.Function(name, [A, out], [ca.mtimes(S, JA)], inames, onames, opts)
-
-    def eval(self, arg):
-        try:
-            return self._eval(arg)
-        except KeyboardInterrupt:
-            interrupts.note()  # (CasADi hands it on as a RuntimeError: see identify.interrupts)
-            raise
-
-    def _eval(self, arg):
-        interrupts.check()
-        A = np.array(arg[0])
-        key = A.tobytes()
-        if key != self._key:
-            t0 = time.perf_counter()
-            if self.jac and self.scheme == "exact":
-                self._val = self._exact(A)
-                self.counter["jac_s"] += time.perf_counter() - t0
-                self.counter["jac_calls"] += 1
-            elif self.jac:
-                self._val = self.arcs.evaluate_jacobian(A, self.threads, rows=self.rows, scheme=self.scheme,
-                                                        rel_step=self.rel_step, share=self.share,
-                                                        own=self.own)[1]
-                self.counter["jac_s"] += time.perf_counter() - t0
-                self.counter["jac_calls"] += 1
-            else:
-                self._val = self.arcs.evaluate(A, self.threads)
-                self.counter["arc_s"] += time.perf_counter() - t0
-                self.counter["arc_calls"] += 1
-            self._key = key
-        return [self._val]
-
-
 def _same_mask(a, b) -> bool:
     return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
-
-
-def _blockdiag_sparsity(rows: int, cols: int, E: int) -> ca.Sparsity:
-    """E dense rows × cols blocks on the diagonal (column-major nonzeros = vec of the
-    rows × cols·E matrix of the blocks side by side)."""
-    r = np.tile(np.arange(rows), cols * E) + np.repeat(np.arange(E), rows * cols) * rows
-    c = np.repeat(np.arange(cols * E), rows)
-    return ca.Sparsity.triplet(rows * E, cols * E, r.tolist(), c.tolist())
 
 
 def _to_csc(M, n_cols: int) -> sp.csc_matrix:
@@ -231,7 +91,7 @@ def _to_csc(M, n_cols: int) -> sp.csc_matrix:
     return sp.csc_matrix((np.array(M.nonzeros()), (r, c)), shape=(M.size1(), n_cols))
 
 
-class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement):
+class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExpressions):
     """The NLP over all usable runs for one set of free parameters.
 
     Fixing a free parameter (profiles) is done with equal bounds, so the same NLP
@@ -401,143 +261,6 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement):
             f_lo = f_lo + (ops.fmin(gain, 0.9 * width) if ops is ca else np.minimum(gain, 0.9 * width))
         return (cap - f_lo) / (f_hi - f_lo)
 
-    def _camera_terms(self, P, step):
-        """What the camera adds to each plateau's mean elongation (m).
-
-        Drift: + drift_rate·t̄_p (t̄_p the plateau's mean frame time).
-        Motion blur: a frame at step phase u (fraction of the step interval since the
-        last step) averaging e over an exposure T centred on it reads, with h = T·fp/2
-        (T·fp ≤ 1),  e(t) + Δx·[max(0, u + h − 1) − max(0, h − u)]/(2h): a part of the
-        next step when the window reaches it, minus a part of the current one when the
-        window starts before it. Frames placed symmetrically in the step interval (the
-        usual two frames per step at u = ¼, ¾) cancel in the plateau mean: the blur then
-        shows only in frames taken during a slip, which the plateaus leave out.
-        """
-        out = ca.DM.zeros(self.P, 1)
-        if "drift_rate" in self.theta.names or self.values.get("drift_rate", 0.0) != 0.0:
-            out = out + P["drift_rate"] * ca.DM(self.pl_mean_t)
-        if "exposure" in self.theta.names or self.values.get("exposure", 0.0) != 0.0:
-            rows = []
-            for r in self.runs:
-                if r.kind != "events":
-                    continue
-                u = ca.DM(r.frame_phases).T  # 1 × U
-                h = P["exposure"] * r.fp / 2
-                b = (ca.fmax(0, u + h - 1) - ca.fmax(0, h - u)) / (2 * h + 1e-30)
-                counts = ca.DM(r.phase_counts)  # plateaus × U
-                rows.append(ca.mtimes(counts, b.T) / ca.DM(np.maximum(r.plateau_n, 1)))
-            out = out + step * ca.vertcat(*rows)
-        return out
-
-    # ---------------------------------------------------------------- symbolic NLP
-    def _symbolic(self, w, Y):
-        """Arc inputs A(w), residuals r(w, Y), constraints g(w, Y); Y = (slip, end state)."""
-        th = w[: self.n_theta]
-        P = self.params(th)
-        E = self.E
-        x_um = w[self.i_x : self.i_x + self.P]
-        step = self.model.step(P)
-        res = []
-        if self.P:
-            off = w[self.i_off + self.pl_run] if self.n_off else 0.0
-            model_e = step * ca.DM(self.pl_mean_s) - x_um * LENGTH_UNIT + off * LENGTH_UNIT
-            model_e = model_e + self._camera_terms(P, step)
-            res.append(ca.sqrt(ca.DM(self.pl_n)) * (ca.DM(self.pl_mean_e) - model_e) / ca.DM(self.pl_sigma))
-        drift = P["drift_rate"]
-        for r in self.runs:
-            if r.kind == "events" and r.s_nn > 0:
-                # a drift adds drift/fp per step to the staircase slope
-                res.append(math.sqrt(r.s_nn) * (step + drift / r.fp - r.slope_hat) / r.sigma)
-        A, g = None, ca.MX(0, 1)
-        if E:
-            x_prev = x_um[self.ev_prev] * LENGTH_UNIT
-            e0 = step * ca.DM(self.ev_step) - x_prev
-            Pev = dict(P, k=ca.DM(self.ev_k), Nb=ca.DM(self.ev_Nb))
-            z0 = self.start_state(self.start_positions(w), x_prev, e0, Pev, ops=ca)
-            rows = [(x_prev / LENGTH_UNIT).T, (e0 / LENGTH_UNIT).T, z0.T]
-            for n in self.arcs.param_names:
-                v = P[n]
-                rows.append(ca.repmat(v if isinstance(v, ca.MX) else ca.MX(v), 1, E))
-            rows += [ca.DM(self.ev_k).T, ca.DM(self.ev_Nb).T, ca.DM(self.ev_fp).T, ca.DM(self.ev_M).T]
-            A = ca.vertcat(*rows)
-            # triggers: the previous arc's end state aged over the rest, in this interval
-            nx = self.ev_next
-            pv = nx - 1
-            rest = (self.ev_step[nx] - self.ev_step[pv] - self.ev_M[pv]) / self.ev_fp[pv]
-            z_aged = self.law.rest(Y[1, pv].T, ca.DM(rest), P, ops=ca)
-            z_before = self.law.rest(Y[1, pv].T, ca.DM(np.maximum(rest - 1 / self.ev_fp[nx], 0)), P, ops=ca)
-            Pn = dict(P, k=ca.DM(self.ev_k[nx]), Nb=ca.DM(self.ev_Nb[nx]))
-            s_pos = self.position(z_aged, x_prev[nx], e0[nx], Pn, ops=ca, z_before=z_before)
-            if not self.interval_triggers:
-                phi = w[self.i_phi : self.i_phi + self.n_phase]
-                k_of = np.array([self.phase_of_run[int(ri)] for ri in self.ev_run[nx]], int)
-                # (a 1x1 MX indexed by a list comes back as a row: force a column)
-                res.append(math.sqrt(12) * (s_pos - ca.reshape(phi[k_of.tolist()], -1, 1)))
-                res.append(math.sqrt(12) * (phi - 0.5))
-            g = x_um[self.ev_prev + 1] - x_um[self.ev_prev] - Y[0, :].T
-            if self.n_s:
-                # shooting: each arc starts where the previous arc's end, aged over the
-                # rest, puts the capacity in the (plain) trigger interval; a run's first
-                # slip from an unobserved initial contact, uniform over the interval
-                self._s_target = self.position(z_aged, x_prev[nx], e0[nx], Pn, ops=ca)
-                s_all = w[self.i_s : self.i_s + self.n_s]
-                # (scaled to µm of slip length, so that the feasibility tolerance means
-                # the same as for the slip lengths; a 1x1 MX indexed by a list comes back
-                # as a row: force columns)
-                s_next = ca.reshape(s_all[self.ev_next.tolist()], -1, 1)
-                g = ca.vertcat(g, START_SCALE_UM * (s_next - ca.reshape(self._s_target, -1, 1)))
-                if not self.interval_triggers:
-                    res.append(math.sqrt(12) * (ca.reshape(s_all[self.ev_firsts.tolist()], -1, 1) - 0.5))
-        for r in self.creep_runs:
-            Pr = dict(P, k=r.k, Nb=r.Nb)
-            vp = r.fp * step
-            zss = self.law.steady_state(vp, Pr, ops=ca)
-            mu = self.law.static_coefficient(zss, Pr, ops=ca) + P["A"] * ca.log(1 + vp / P["vc"])
-            f = self.model.spring_force(r.steady_mean_e, Pr, ops=ca)
-            res.append((f - mu * self.model.normal_load(Pr)) / (r.k * r.steady_se))
-        return A, ca.vertcat(*res), g
-
-    def build(self):
-        """Residual, constraint and derivative Functions (and Ipopt, when chosen)."""
-        opts = self.opts
-        E = self.E
-        w = ca.MX.sym("w", self.n_w)
-        Ysym = ca.MX.sym("Y", 2, max(E, 1))
-        A, rY, gY = self._symbolic(w, Ysym)
-        R_w = ca.jacobian(rY, w)
-        if self.n_s:
-            self._s_target_fun = ca.Function("s_target", [w, Ysym], [self._s_target])
-        if E:
-            ix = self.arcs.index
-            # the block position matters to an arc only through the topography ripple:
-            # without it, two fewer integrations per arc and Jacobian
-            topo = "topo_amp" in self.theta.names or self.values.get("topo_amp", 0.0) != 0.0
-            rows = ([ix["x0_um"]] if topo else []) + [ix["e0_um"], ix["state0"]] \
-                + [ix[n] for n in self.theta.names if n in ix]
-            self._cb_jac = _ArcCallback("arc_jacs", self.arcs, E, opts.threads, True, self.counter, rows,
-                                        scheme=opts.arc_jacobian)
-            self._cb_val = _ArcCallback("arcs", self.arcs, E, opts.threads, False, self.counter,
-                                        jac_callback=self._cb_jac)
-            Y = self._cb_val(A)[:2, :]
-            JA = ca.MX(_blockdiag_sparsity(2, self.arcs.n_in, E), ca.vec(self._cb_jac(A)))
-            dY_dw = ca.mtimes(JA, ca.jacobian(ca.vec(A), w))
-            r = ca.substitute(rY, Ysym, Y)
-            g = ca.substitute(gY, Ysym, Y)
-            Jr = ca.substitute(R_w + ca.mtimes(ca.jacobian(rY, ca.vec(Ysym)), dY_dw), Ysym, Y)
-            Jg = ca.substitute(ca.jacobian(gY, w) + ca.mtimes(ca.jacobian(gY, ca.vec(Ysym)), dY_dw), Ysym, Y)
-            self._arc_inputs = ca.Function("arc_inputs", [w], [A])
-        else:
-            r, g, Jr, Jg = rY, gY, R_w, ca.MX(0, self.n_w)
-            self._arc_inputs = None
-        self._r_fun = ca.Function("r", [w], [r])
-        self._g_fun = ca.Function("g", [w], [g])
-        self._jr_fun = ca.Function("Jr", [w], [Jr])
-        self._jg_fun = ca.Function("Jg", [w], [Jg])
-        self.n_g = int(g.numel())
-        self.n_r = int(r.numel())
-        if opts.solver == "ipopt":
-            self._build_ipopt(w, r, g, Jr, Jg, opts)
-        return self
 
     # ---------------------------------------------------------------- numerics
     def evaluate(self, w, jac: bool = False):
@@ -754,10 +477,9 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement):
         own = None if tol is None or may is None or may.all() else ~may
         if cb is not None and ((cb.scheme, cb.rel_step, cb.share) != (scheme, rel_step, tol)
                                or not _same_mask(cb.own, own)):
-            cb.scheme, cb.rel_step, cb.share, cb.own, cb._key = scheme, rel_step, tol, own, None
+            cb.scheme, cb.rel_step, cb.share, cb.own = scheme, rel_step, tol, own
+            cb.forget()
             if own is not None:
                 log.debug("arc differences shared among the %d of %d arcs near continuity",
                           int(own.size - own.sum()), own.size)
         return self
-
-

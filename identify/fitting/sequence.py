@@ -12,132 +12,41 @@ there, so data whose triggers fit pay nothing.
 
 A trial changes one run's sequence, and given the parameters the runs are independent
 (each has its own plateaus, offset, phase and arc starts), so a trial solves that run
-alone with the parameters held (:func:`_alone`): its χ² change is the whole problem's
-at those parameters. Kept changes are solved jointly, the parameters free, once per
-pass (:func:`_joint`).
+alone with the parameters held (:func:`identify.fitting.sequence_trials.run_alone`): its
+χ² change is the whole problem's at those parameters. Kept changes are solved jointly,
+the parameters free, once per pass (:func:`identify.fitting.sequence_trials.solve_joint`).
 
 A run with many slips off by whole steps (a phase-locked run of 3σ slips: 16 of its
 323 on the 10-run speed benchmark) is first given one trial that moves each of them by
 what its residual says (:func:`batch_triggers`), instead of a trial, a re-solve and a
 rebuild of the whole problem per slip.
+
+The passes are here; the problem rebuilt for a new sequence is in
+:mod:`identify.fitting.sequence_carry`, the trials' machinery in
+:mod:`identify.fitting.sequence_trials`.
 """
 
 from __future__ import annotations
 
-import copy
 import logging
-import time
 from dataclasses import replace
 
 import numpy as np
 
-from identify.fitting.problem import Problem
-from identify.fitting.rundata import make_run_data
-from identify.model.symbolic import LENGTH_UNIT
+from identify.fitting.sequence_carry import CARRY_START_TOL as CARRY_START_TOL
+from identify.fitting.sequence_carry import with_triggers as with_triggers
+from identify.fitting.sequence_trials import (
+    continue_trial,
+    excess_parts,
+    held_options,
+    keep_trial,
+    run_alone_or_none,
+    solve_joint,
+    try_sequence,
+)
+from identify.fitting.sequence_trials import excess_chi2 as excess_chi2
 
 log = logging.getLogger(__name__)
-
-
-def _carry(old_steps, values, new_steps):
-    """Per-slip values (e.g. moving times) carried to a new trigger list: a slip keeps
-    its value by position when only triggers moved, an inserted one takes the preceding
-    old slip's (the following one is the merged slip, its value inflated)."""
-    if values is None:
-        return None
-    old_steps, values = np.asarray(old_steps), np.asarray(values)
-    if len(new_steps) == len(old_steps):
-        return values
-    prev = np.clip(np.searchsorted(old_steps, new_steps, side="right") - 1, 0, len(old_steps) - 1)
-    return values[prev]
-
-
-def _carry_horizons(old, new) -> np.ndarray:
-    """Arc horizons (steps) of the previous problem carried to the new one, never past
-    the next trigger."""
-    M = np.ones(new.E, int)
-    for ri in np.unique(new.ev_run):
-        sel_new, sel_old = new.ev_run == ri, old.ev_run == ri
-        M[sel_new] = _carry(old.ev_step[sel_old], old.ev_M[sel_old], new.ev_step[sel_new])
-    return np.maximum(np.minimum(M, new.ev_gap), 1)
-
-
-def _carry_solution(old, new, w: np.ndarray) -> np.ndarray:
-    """The previous solution as a start for the new mode sequence: parameters, offsets
-    and phases as they were; each plateau the position of the old plateau it lies in,
-    an inserted plateau its position in the frames; each run's first slip its start
-    position, the other starts mid-interval until :meth:`Problem.settle_arcs` sets them
-    from the arcs."""
-    if new.n_w == old.n_w:
-        return w.copy()
-    v = np.zeros(new.n_w)  # every entry is set below
-    v[: old.i_x] = w[: old.i_x]
-    v[new.i_phi : new.i_s] = w[old.i_phi : old.i_s]
-    v[new.i_s : new.n_w] = 0.5
-    if new.n_s and old.n_s:  # the same runs, each with its first slip, in the same order
-        v[new.i_s + new.ev_firsts] = w[old.i_s + old.ev_firsts]
-        # a slip whose trigger and predecessor's trigger are where they were keeps its
-        # start (Problem.settle_arcs moves it only if its target moved: CARRY_START_TOL)
-        same = _unchanged_slips(old, new)
-        v[new.i_s + same[:, 1]] = w[old.i_s + same[:, 0]]
-    x_old = w[old.i_x : old.i_x + old.P]
-    p_new = p_old = 0
-    for ri, r in enumerate(new.runs):
-        if r.kind != "events":
-            continue
-        t_old, t_new = old.runs[ri].trigger_steps, r.trigger_steps
-        # plateau j of the new run starts after trigger j − 1 (the first at the start)
-        for j in range(len(t_new) + 1):
-            if j == 0:
-                v[new.i_x + p_new + j] = x_old[p_old]
-                continue
-            k = int(np.searchsorted(t_old, t_new[j - 1], side="right"))
-            if k >= 1 and t_old[k - 1] == t_new[j - 1]:
-                v[new.i_x + p_new + j] = x_old[p_old + k]
-            else:  # inserted: its frames' level, shifted as the solution shifts the old plateau it was in
-                q = p_old + k
-                v[new.i_x + p_new + j] = (new.pl_x0[p_new + j] - old.pl_x0[q]) / LENGTH_UNIT + x_old[q]
-        p_new += len(t_new) + 1
-        p_old += len(t_old) + 1
-    return v
-
-
-# A carried start within this distance (units of its trigger interval) of where the
-# previous arc's end now puts it is not synced: its arc, integrated at the solution the
-# start comes from, is then not integrated again (1e-3 of the interval is 1e-6 µm of slip
-# length, START_SCALE_UM; the solutions carried are feasible to 1e-4 µm or better).
-CARRY_START_TOL = 1e-3
-
-
-def _unchanged_slips(old, new) -> np.ndarray:
-    """(old index, new index) of the slips with a predecessor whose trigger step and
-    predecessor's trigger step are the same in both problems (same run)."""
-    def key(p):
-        prev = np.r_[-1, p.ev_step[:-1]] if p.E else np.zeros(0)
-        return {(int(p.ev_run[e]), int(p.ev_step[e]), int(prev[e])): e for e in p.ev_next}
-
-    ko, kn = key(old), key(new)
-    pairs = [(ko[k], e) for k, e in kn.items() if k in ko]
-    return np.array(pairs, int).reshape(-1, 2)
-
-
-# ----------------------------------------------------------------------------- driver
-def with_triggers(prob, w, changes: dict, model, values, opts, say):
-    """The NLP with the trigger steps of ``changes`` ({run index: steps}) and ``w``
-    carried over to it (the frames taken while a block moved carried with their slips)."""
-    moving = prob.moving_times(w)
-    new_runs = []
-    for i, r in enumerate(prob.runs):
-        if r.kind != "events":
-            new_runs.append(r)
-            continue
-        steps = changes.get(i, r.trigger_steps)
-        new_runs.append(make_run_data(r.events, triggers=steps, moving_s=_carry(r.trigger_steps, moving.get(i), steps)))
-    new = Problem(new_runs, model, values, opts)
-    new.ev_M = _carry_horizons(prob, new)
-    new.counter = prob.counter  # the timing report covers every solve, not just the last
-    new.progress = say
-    new.build()
-    return new, new.settle_arcs(_carry_solution(prob, new, w), keep=CARRY_START_TOL)
 
 
 def _other_step(steps, detected, j, alt, reach: int = 2):
@@ -205,192 +114,6 @@ def _trigger_misfit(prob, r: np.ndarray, i: int, n: int, reach: int = GATE_REACH
     # a trigger the model cannot evaluate is as misfit as it gets
     return float(np.max(np.where(np.isfinite(vals), np.abs(vals), np.inf))) if vals.size else 0.0
 
-
-def _held(opts):
-    """``opts`` with no parameter free: a trial's NLP holds them (FitOptions, rightly,
-    refuses that for a fit, so the copy bypasses its checks)."""
-    o = copy.copy(opts)
-    object.__setattr__(o, "free", ())
-    object.__setattr__(o, "bounds", {})
-    return o
-
-
-def _run_index(prob, i: int) -> np.ndarray:
-    """Indices in ``prob``'s w of run i's own variables (offset, plateaus, phase, arc
-    starts), in the order a problem of run i alone lays them out."""
-    parts = [[prob.i_off + i]] if prob.n_off else []
-    parts.append(prob.i_x + np.nonzero(prob.pl_run == i)[0])
-    parts.append([prob.i_phi + prob.phase_of_run[i]])
-    if prob.n_s:
-        parts.append(prob.i_s + np.nonzero(prob.ev_run == i)[0])
-    return np.concatenate(parts).astype(int)
-
-
-def _alone(prob, w, i: int, model, opts, say):
-    """(problem, w) of run i of ``prob`` alone, the parameters held at ``w``'s and the
-    arcs sized as in ``prob``: at that w its residuals are ``prob``'s rows of run i.
-    A trial on it costs one run's arcs, without their parameter derivatives, instead of
-    every run's. Measured on the 8-run model-made set of :mod:`identify.simulation.withheld` (both
-    fits side by side on the two cores): the same 44 trials and kept changes, the same
-    estimates; the ambiguous pass 21 -> 13 s, the misfit pass 88 -> 41 s (its trials at
-    a 10 Hz slip where nothing helps 19 -> 4 s: the rest is the joint solves of kept
-    changes), the whole fit 153 -> 97 s."""
-    sub = Problem([prob.runs[i]], model, prob.params(w[: prob.n_theta]), _held(opts))
-    sub.ev_M = prob.ev_M[prob.ev_run == i].copy()
-    sub.counter = prob.counter
-    sub.progress = say
-    sub.build()
-    return sub, np.asarray(w, float)[_run_index(prob, i)]
-
-
-def _adopt(prob, w, i: int, trial, w_trial, model, values, opts, say):
-    """(problem, w) of ``prob`` with run i's sequence and variables from a local trial's
-    solution, the other runs and the parameters as in ``w``."""
-    full, w0 = with_triggers(prob, w, {i: trial.runs[0].trigger_steps}, model, values, opts, say)
-    w0[_run_index(full, i)] = w_trial
-    # the trial's solution may slip past an arc's horizon (the trial does not resize);
-    # a longer arc changes the next rest, so the starts are synced to the arcs again
-    return full, full.settle_arcs(w0)
-
-
-def _kept(prob, best, i, trial, sol, model, values, opts, say):
-    """A local trial kept: the run alone converged (the parameters still held), then its
-    sequence and solution taken into the whole problem. Returns (problem, solution,
-    iterations, wall s); problem and solution are None if the whole problem cannot be
-    rebuilt for it (the change is then not made; the iterations were spent). The whole
-    problem is solved with the parameters free once the pass has no more changes to try
-    (:func:`_joint`), not after each: a trial is judged at held parameters anyway, and
-    converging its run first means the next trial on that run does not count the run's
-    unfinished iterations as its own gain.
-    Measured on the 8-run model-made set of :mod:`identify.simulation.withheld` (the machine to
-    itself, by the profiler): the five joint solves after its five kept changes took
-    5.3 s of a 52 s fit; the one joint solve now takes 1.8 s, and the fit 48.5 s (42.7 s
-    with the one arc evaluation less per sizing of :meth:`Problem.size_arcs`)."""
-    its, wall = 0, 0.0
-    try:
-        more = _solve_again(trial, sol["w"], _held(opts))
-        its, wall = more["iterations"], more["wall_s"]
-        if np.isfinite(more["f"]):
-            sol = more
-    except Exception as err:  # the trial's short solution stands
-        log.info("converging a kept mode-sequence change alone failed: %s", err)
-    try:
-        full, w0 = _adopt(prob, best["w"], i, trial, sol["w"], model, values, opts, say)
-        r = full.residuals(w0)
-    except Exception as err:
-        log.info("taking a kept mode-sequence change into the whole problem failed: %s", err)
-        return None, None, its, wall
-    # (not a loose solution any more: the pass's joint solve, or its failure, decides)
-    adopted = {k: v for k, v in best.items() if k != "loose"}
-    return full, dict(adopted, w=w0, f=0.5 * float(r @ r), success=False, status=sol["status"]), its, wall
-
-
-def _alone_or_none(prob, w, i, model, opts, say):
-    """:func:`_alone`, or None (logged) if run i cannot be set up alone."""
-    try:
-        sub, w_sub = _alone(prob, w, i, model, opts, say)
-        return sub, w_sub, excess_chi2(sub, sub.residuals(w_sub))
-    except Exception as err:
-        log.info("run %d alone could not be set up for mode-sequence trials: %s", i, err)
-        return None
-
-
-def excess_chi2(p, r) -> float:
-    """χ² above its expectation (χ² − number of observations): comparable across mode
-    sequences, which can leave a frame more or less out as moving."""
-    return float(np.sum(r ** 2)) + p.chi2_constant() - p.n_observations()
-
-
-def _split(p, r) -> tuple[float, float]:
-    """(frames, triggers) parts of :func:`excess_chi2` for a problem of one run: the plateau
-    frames' χ² above their number, the trigger rows' above theirs."""
-    g = p.residual_groups()
-    n_frames = int(sum(run.plateau_n.sum() for run in p.runs if run.kind == "events"))
-    frames = float(np.sum(r[: g["slopes"][1]] ** 2)) + p.chi2_constant() - n_frames
-    t0, t1 = g["triggers"]
-    return frames, float(np.sum(r[t0:t1] ** 2)) - (p.n_observations() - n_frames)
-
-
-def _parts(before, w_before, after, w_after) -> str:
-    """How a trial's excess χ² changed, frames and triggers apart: a change the frames
-    pay for is one only the model's triggers ask for."""
-    (f0, t0), (f1, t1) = _split(before, before.residuals(w_before)), _split(after, after.residuals(w_after))
-    return f"frames {f1 - f0:+.1f}, triggers {t1 - t0:+.1f}"
-
-
-def _trial(prob, w, changes: dict, model, values, short, say):
-    """(problem, short solution, excess χ²) of a changed mode sequence; the excess is
-    inf when the trial cannot be evaluated (it is then not taken)."""
-    try:
-        t0 = time.perf_counter()
-        trial, w0 = with_triggers(prob, w, changes, model, values, short, say)
-        t_build = time.perf_counter() - t0
-        sol = trial.solve(w0)
-        f = excess_chi2(trial, trial.residuals(sol["w"])) if np.isfinite(sol["f"]) else np.inf
-    except Exception as err:
-        log.info("mode-sequence trial %s failed: %s", {i: list(map(int, s)) for i, s in changes.items()}, err)
-        return None, dict(iterations=0, wall_s=0.0), np.inf
-    log.info("mode-sequence trial: build %.2f s, %d iteration(s) %.2f s, excess %.1f",
-             t_build, sol["iterations"], sol["wall_s"], f)
-    return trial, sol, f
-
-
-def _solve_again(trial, w, opts) -> dict:
-    """The trial's problem solved from ``w`` under ``opts`` (its own were a trial's)."""
-    trial.opts = opts
-    if opts.solver == "ipopt":
-        trial.build()  # (Ipopt's iteration limit is built into its solver object)
-    return trial.solve(w)
-
-
-def _continue(trial, sol, opts, iters: int):
-    """A screened (local) trial solved ``iters`` more iterations from where it stopped:
-    (that solve, excess χ²), or (None, inf) if it fails."""
-    try:
-        more = _solve_again(trial, sol["w"], _held(replace(opts, max_iter=iters)))
-        f = excess_chi2(trial, trial.residuals(more["w"])) if np.isfinite(more["f"]) else np.inf
-    except Exception as err:
-        log.info("continuing a mode-sequence trial failed: %s", err)
-        return None, np.inf
-    return more, f
-
-
-def _keep(trial, sol, opts):
-    """The whole problem solved to convergence, the parameters free, from the point
-    where a pass's kept changes left it (:func:`_kept`). Returns (problem, solution,
-    iterations, wall s) of that solve."""
-    # (if that solve fails, the adopted point stands, its parameters never freed: say so)
-    failed = f"{sol.get('status')}; the joint solve after the kept mode-sequence changes failed"
-    prob, best = trial, dict(sol, success=False)
-    try:
-        full = _solve_again(prob, best["w"], opts)
-    except Exception as err:  # the adopted point stands
-        log.info("solve after a kept mode-sequence move failed: %s", err)
-        return prob, dict(best, status=failed), 0, 0.0
-    # the joint solve wins even at a higher ½χ²: it starts from the point the kept changes
-    # were adopted at and descends a merit that counts the constraints, which that point
-    # can still violate (a kept 4-iteration trial point, kept instead, ended calibration
-    # seed 1 as not converged)
-    if np.isfinite(full["f"]):
-        if full["f"] > best["f"]:
-            log.info("kept changes solved to %s at ½χ² %.6g, above the adopted point's %.6g",
-                     full["status"], full["f"], best["f"])
-        best = full
-    else:
-        best["status"] = failed
-    return prob, best, full["iterations"], full["wall_s"]
-
-
-def _joint(prob, best, opts, say):
-    """:func:`_keep` for a caller that keeps no iteration count of its own: (problem,
-    solution) with the solve's iterations and time added to ``best``'s."""
-    say("  the whole problem re-solved with the kept changes, the parameters free")
-    its0, wall0 = best["iterations"], best["wall_s"]
-    prob, sol, its, wall = _keep(prob, best, opts)
-    sol = dict(sol, iterations=its0 + its, wall_s=wall0 + wall)
-    return prob, sol
-
-
 def ambiguous_triggers(prob, best, model, values, opts, say):
     """Try the other step of each slip whose detected trigger the frames leave ambiguous
     (:data:`identify.traces.events.AMBIGUOUS_RSS`), most ambiguous first, against the model.
@@ -408,7 +131,7 @@ def ambiguous_triggers(prob, best, model, values, opts, say):
     A move is kept when it lowers χ² beyond what the frames it uses expect (χ² − number
     of observations: a trial can leave a frame more or less out as moving), and the
     kept change's run is solved to convergence, the parameters held, before the next
-    trial (:func:`_kept`). The whole problem is not solved again here: the misfit pass
+    trial (:func:`keep_trial`). The whole problem is not solved again here: the misfit pass
     that follows does that once it has made its own changes (its ``unsolved``).
     Returns (problem, solution, slips moved)."""
     from identify.traces.events import AMBIGUOUS_RSS
@@ -425,7 +148,7 @@ def ambiguous_triggers(prob, best, model, values, opts, say):
         return prob, best, 0
     cands = sorted(cands)
     r_now = prob.residuals(best["w"])
-    short = _held(replace(opts, max_iter=TRIAL_ITER))
+    short = held_options(replace(opts, max_iter=TRIAL_ITER))
     moved, tried, fit_there, its, wall = 0, 0, 0, 0, 0.0
     say(f"{len(cands)} ambiguous slip trigger(s): trying the other step of those whose triggers misfit "
         f"(|residual| > {TRIGGER_GATE:g} at the slip or the next {GATE_REACH})")
@@ -444,20 +167,20 @@ def ambiguous_triggers(prob, best, model, values, opts, say):
             log.info("ambiguous triggers: stopped after %d trials", tried)
             break
         tried += 1
-        alone = _alone_or_none(prob, best["w"], i, model, opts, say)
+        alone = run_alone_or_none(prob, best["w"], i, model, opts, say)
         if alone is None:
             continue
         sub, w_sub, now = alone
-        trial, sol, f = _trial(sub, w_sub, {0: new_steps}, model, sub.values, short, say)
+        trial, sol, f = try_sequence(sub, w_sub, {0: new_steps}, model, sub.values, short, say)
         if trial is None:
             continue
         its, wall = its + sol["iterations"], wall + sol["wall_s"]
         kept = f < now - 1.0
         say(f"  {prob.runs[i].name}: slip at step {n} tried at {alt}: the run's chi2 - n_obs {now:.1f} -> {f:.1f} "
-            f"({_parts(sub, w_sub, trial, sol['w'])}), " + ("kept" if kept else "not kept"))
+            f"({excess_parts(sub, w_sub, trial, sol['w'])}), " + ("kept" if kept else "not kept"))
         if not kept:
             continue
-        full, adopted, it_full, s_full = _kept(prob, best, i, trial, sol, model, values, opts, say)
+        full, adopted, it_full, s_full = keep_trial(prob, best, i, trial, sol, model, values, opts, say)
         its, wall = its + it_full, wall + s_full
         if full is None:
             continue
@@ -520,14 +243,14 @@ def batch_triggers(prob, best, model, values, opts, say):
     if int(opts.sequence_trials) <= 0 or not prob.E:
         return prob, best, 0
     shifts = _predicted_shifts(prob, prob.residuals(best["w"]))
-    short = _held(replace(opts, max_iter=TRIAL_ITER))
+    short = held_options(replace(opts, max_iter=TRIAL_ITER))
     moved, its, wall = 0, 0, 0.0
     for i in sorted(shifts, key=lambda i: -len(shifts[i])):
         if len(shifts[i]) < BATCH_MIN:
             continue
         run = prob.runs[i]
         steps = np.array(run.trigger_steps, int)
-        alone = _alone_or_none(prob, best["w"], i, model, opts, say)
+        alone = run_alone_or_none(prob, best["w"], i, model, opts, say)
         if alone is None:
             continue
         sub, w_sub, now = alone
@@ -539,7 +262,7 @@ def batch_triggers(prob, best, model, values, opts, say):
             if not (np.all(np.diff(new) > 0) and new[0] >= 0 and new[-1] <= int(run.events.steps.max())):
                 log.info("batch of trigger moves on run %d not tried: two slips would share a step", i)
                 break
-            trial, sol, f = _trial(sub, w_sub, {0: new}, model, sub.values, short, say)
+            trial, sol, f = try_sequence(sub, w_sub, {0: new}, model, sub.values, short, say)
             its, wall = its + sol["iterations"], wall + sol["wall_s"]
             if trial is None:
                 break
@@ -557,7 +280,7 @@ def batch_triggers(prob, best, model, values, opts, say):
             moves = {k: d for k, d in moves.items() if k not in wrong}
         if not kept:
             continue
-        full, adopted, it_full, s_full = _kept(prob, best, i, trial, sol, model, values, opts, say)
+        full, adopted, it_full, s_full = keep_trial(prob, best, i, trial, sol, model, values, opts, say)
         its, wall = its + it_full, wall + s_full
         if full is None:
             continue
@@ -630,7 +353,7 @@ def misfit_triggers(prob, best, model, values, opts, say, unsolved: bool = False
 
     The detector's sequence, after the local refinements of :meth:`Problem.refine_triggers`,
     :func:`identify.fitting.missed.missed_slips` and the ambiguous-trigger pass, can still be
-    wrong where slips are a few σ of a frame: on calibration seed 28 a run with 230 nm
+    wrong where slips are a few σ of a frame: on calibration seed 28 a state with 230 nm
     slips every 5 steps (2.5 σ) kept one missed slip, two slips a step late, a pair a step
     early and one spurious slip. The fit then bent μmin 6 % low and A 20 % high (−9.8 σ)
     at reduced χ² 1.10; with the true sequence χ² fell by 575 and every estimate came
@@ -640,7 +363,7 @@ def misfit_triggers(prob, best, model, values, opts, say, unsolved: bool = False
     So, worst first, at each slip whose trigger residual exceeds :data:`TRIGGER_GATE`,
     the local changes of :func:`_moves` are each solved for :data:`SCREEN_ITER`
     iteration and the :data:`SCREEN_KEEP` best on to :data:`TRIAL_ITER`; the best is
-    kept when it lowers χ² − n_obs by more than 1, its run solved to convergence, and
+    kept when it lowers χ² − n_obs by more than 1, its state solved to convergence, and
     the residuals read again. Measured on seed 28 from the fitted
     sequence: the insertion gained 473, moving either late slip 33-34, the early pair 30;
     single moves in the wrong direction lost 57 to 106. At most ``opts.sequence_trials``
@@ -648,92 +371,133 @@ def misfit_triggers(prob, best, model, values, opts, say, unsolved: bool = False
     within the gate are out of its reach, as is a run's first slip (it has no trigger
     residual).
 
-    A kept change is solved on its run alone, the parameters held (:func:`_kept`); once
+    A kept change is solved on its state alone, the parameters held (:func:`keep_trial`); once
     no flagged slip has a change left to try, the whole problem is solved with the
-    parameters free (:func:`_keep`) and the triggers read again, and the pass goes on
-    if that flags new ones. ``unsolved``: ``best`` already carries changes kept at held
+    parameters free (:func:`solve_joint`) and the triggers read again, and the pass goes
+    on if that flags new ones. ``unsolved``: ``best`` already carries changes kept at held
     parameters (the ambiguous pass's), so the whole problem is solved at the end even
     if this pass keeps nothing. Returns (problem, solution, counts by kind)."""
-    from identify.fitting.missed import best_split
-
     counts = dict(moved=0, inserted=0, removed=0)
     budget = int(opts.sequence_trials)
     r_now = prob.residuals(best["w"])
     flagged = _flagged(prob, r_now) if budget > 0 else []
     if not flagged:
         if unsolved:
-            prob, best = _joint(prob, best, opts, say)
+            prob, best = solve_joint(prob, best, opts, say)
         return prob, best, counts
     log.info("triggers that misfit (|r|, run, slip): %s", flagged)
-    screen = _held(replace(opts, max_iter=SCREEN_ITER))
-    its, wall, trials = 0, 0.0, 0
-    tried: set = set()  # (run, local key) of the changes tried, and the undoing of those kept
+    state = _MisfitPass(prob, best, r_now, counts, model, values, opts, say, budget, pending=unsolved)
     say(f"mode sequence: trying local changes where slip triggers misfit (|residual| > {TRIGGER_GATE:g})")
-    pending = unsolved  # changes kept at held parameters, the whole problem not solved since
-    while trials < budget:
-        target = None
-        for _, i, k in _flagged(prob, r_now):
-            run = prob.runs[i]
-            e_prev = int(np.nonzero(prob.ev_run == i)[0][k - 1])
-            split = best_split(prob, best["w"], e_prev)
-            moves = [m for m in _moves(run.trigger_steps, k, split and split[1], int(run.events.steps.max()))
-                     if (i, _local(run.trigger_steps, m[1])) not in tried]
-            if moves:
-                target = (i, k, moves)
-                break
+    while state.trials < budget:
+        target = state.next_target()
         if target is None:
-            if not pending:
+            if not state.pending:
                 break
             # the parameters free: the triggers move a little everywhere, and may flag others
-            prob, best = _joint(prob, best, opts, say)
-            pending = False
-            r_now = prob.residuals(best["w"])
+            state.solve_joint()
             continue
-        i, k, moves = target
-        before = prob.runs[i].trigger_steps
-        name, at = prob.runs[i].name, int(before[k])
-        alone = _alone_or_none(prob, best["w"], i, model, opts, say)
-        if alone is None:
-            tried.update((i, _local(before, m[1])) for m in moves)  # (not tried again)
-            continue
-        sub, w_sub, now = alone
-        results = []
-        for label, steps, kind, n in moves[: budget - trials]:
-            trials += 1
-            tried.add((i, _local(before, steps)))
-            trial, sol, f = _trial(sub, w_sub, {0: np.array(steps, int)}, model, sub.values, screen, say)
-            its, wall = its + sol["iterations"], wall + sol["wall_s"]
-            if trial is not None:
-                results.append([f, label, kind, n, trial, sol])
-        if not results:
-            continue
-        rank = lambda c: c[0] if np.isfinite(c[0]) else np.inf  # noqa: E731
-        for c in sorted(results, key=rank)[:SCREEN_KEEP]:
-            if np.isfinite(c[0]):
-                more, c[0] = _continue(c[4], c[5], opts, TRIAL_ITER - SCREEN_ITER)
-                if more is not None:  # (its χ², even if higher: one iteration's may not be feasible)
-                    its, wall, c[5] = its + more["iterations"], wall + more["wall_s"], more
-        f, label, kind, n, trial, sol = min(results, key=rank)
-        if not f < now - 1.0:
-            say(f"  {name}: no change at step {at} lowers chi2 (best: {label}, "
-                f"the run's chi2 - n_obs {now:.1f} -> {f:.1f})")
-            continue
-        say(f"  {name}: {label}: the run's chi2 - n_obs {now:.1f} -> {f:.1f} "
-            f"({_parts(sub, w_sub, trial, sol['w'])}), kept")
-        full, adopted, it_full, s_full = _kept(prob, best, i, trial, sol, model, values, opts, say)
-        its, wall = its + it_full, wall + s_full
-        if full is None:
-            continue
-        counts[kind] += n
-        prob, best, pending = full, adopted, True
-        tried.add((i, _local(prob.runs[i].trigger_steps, before)))  # (its undoing)
-        r_now = prob.residuals(best["w"])
-    if pending:  # (the trial budget spent)
-        prob, best = _joint(prob, best, opts, say)
-        r_now = prob.residuals(best["w"])
-    left = len(_flagged(prob, r_now))
+        state.try_at(*target)
+    if state.pending:  # (the trial budget spent)
+        state.solve_joint()
+    prob, best, trials = state.prob, state.best, state.trials
+    left = len(_flagged(prob, state.r_now))
     say(f"  {trials} trial(s); " + (f"{left} slip trigger(s) still misfit" if left else "every trigger fits")
         + (" (trial budget spent)" if left and trials >= budget else ""))
     # (best carries the iterations before the pass and of its joint solves: add the trials')
-    best["iterations"], best["wall_s"] = best["iterations"] + its, best["wall_s"] + wall
+    best["iterations"], best["wall_s"] = best["iterations"] + state.its, best["wall_s"] + state.wall
     return prob, best, counts
+
+
+class _MisfitPass:
+    """The state of :func:`misfit_triggers` as it goes: the problem and solution now, their
+    trigger residuals, the changes tried, the trials and the iterations and time they took."""
+
+    def __init__(self, prob, best, r_now, counts, model, values, opts, say, budget: int, pending: bool):
+        self.prob, self.best, self.r_now, self.counts = prob, best, r_now, counts
+        self.model, self.values, self.opts, self.say, self.budget = model, values, opts, say, budget
+        self.screen = held_options(replace(opts, max_iter=SCREEN_ITER))
+        self.its, self.wall, self.trials = 0, 0.0, 0
+        self.tried: set = set()  # (run, local key) of the changes tried, and the undoing of those kept
+        self.pending = pending  # changes kept at held parameters, the whole problem not solved since
+
+    def next_target(self):
+        """(run, slip, local changes not tried yet) at the worst flagged slip that has any,
+        or None."""
+        from identify.fitting.missed import best_split
+
+        prob = self.prob
+        for _, i, k in _flagged(prob, self.r_now):
+            run = prob.runs[i]
+            e_prev = int(np.nonzero(prob.ev_run == i)[0][k - 1])
+            split = best_split(prob, self.best["w"], e_prev)
+            moves = [m for m in _moves(run.trigger_steps, k, split and split[1], int(run.events.steps.max()))
+                     if (i, _local(run.trigger_steps, m[1])) not in self.tried]
+            if moves:
+                return i, k, moves
+        return None
+
+    def solve_joint(self) -> None:
+        """The whole problem solved with the parameters free and its residuals read again."""
+        self.prob, self.best = solve_joint(self.prob, self.best, self.opts, self.say)
+        self.pending = False
+        self.r_now = self.prob.residuals(self.best["w"])
+
+    def try_at(self, i: int, k: int, moves: list) -> None:
+        """The changes ``moves`` at run i's slip k screened on the run alone, the best few
+        solved on, and the best of them kept if it lowers the run's χ² − n_obs by more than 1."""
+        before = self.prob.runs[i].trigger_steps
+        name, at = self.prob.runs[i].name, int(before[k])
+        alone = run_alone_or_none(self.prob, self.best["w"], i, self.model, self.opts, self.say)
+        if alone is None:
+            self.tried.update((i, _local(before, m[1])) for m in moves)  # (not tried again)
+            return
+        sub, w_sub, now = alone
+        results = self._screen(i, before, sub, w_sub, moves)
+        if not results:
+            return
+        f, label, kind, n, trial, sol = self._finish(results)
+        if not f < now - 1.0:
+            self.say(f"  {name}: no change at step {at} lowers chi2 (best: {label}, "
+                     f"the run's chi2 - n_obs {now:.1f} -> {f:.1f})")
+            return
+        self.say(f"  {name}: {label}: the run's chi2 - n_obs {now:.1f} -> {f:.1f} "
+                 f"({excess_parts(sub, w_sub, trial, sol['w'])}), kept")
+        self._keep(i, before, trial, sol, kind, n)
+
+    def _screen(self, i: int, before, sub, w_sub, moves: list) -> list:
+        """[excess χ², label, kind, slips, trial, solution] of each change the trial budget
+        allows, solved for SCREEN_ITER iterations on the run alone."""
+        results = []
+        for label, steps, kind, n in moves[: self.budget - self.trials]:
+            self.trials += 1
+            self.tried.add((i, _local(before, steps)))
+            trial, sol, f = try_sequence(sub, w_sub, {0: np.array(steps, int)}, self.model, sub.values,
+                                         self.screen, self.say)
+            self.its, self.wall = self.its + sol["iterations"], self.wall + sol["wall_s"]
+            if trial is not None:
+                results.append([f, label, kind, n, trial, sol])
+        return results
+
+    def _finish(self, results: list) -> list:
+        """The SCREEN_KEEP best screened changes solved on to TRIAL_ITER iterations; the
+        best of all then."""
+        rank = lambda c: c[0] if np.isfinite(c[0]) else np.inf  # noqa: E731
+        for c in sorted(results, key=rank)[:SCREEN_KEEP]:
+            if np.isfinite(c[0]):
+                more, c[0] = continue_trial(c[4], c[5], self.opts, TRIAL_ITER - SCREEN_ITER)
+                if more is not None:  # (its χ², even if higher: one iteration's may not be feasible)
+                    self.its, self.wall, c[5] = self.its + more["iterations"], self.wall + more["wall_s"], more
+        return min(results, key=rank)
+
+    def _keep(self, i: int, before, trial, sol, kind: str, n: int) -> None:
+        """A change kept: its run converged alone and taken into the whole problem (unless
+        that cannot be rebuilt), the change's undoing marked as tried."""
+        full, adopted, it_full, s_full = keep_trial(self.prob, self.best, i, trial, sol, self.model, self.values,
+                                                    self.opts, self.say)
+        self.its, self.wall = self.its + it_full, self.wall + s_full
+        if full is None:
+            return
+        self.counts[kind] += n
+        self.prob, self.best, self.pending = full, adopted, True
+        self.tried.add((i, _local(self.prob.runs[i].trigger_steps, before)))  # (its undoing)
+        self.r_now = self.prob.residuals(self.best["w"])

@@ -614,7 +614,7 @@ def test_a_changed_sequence_keeps_the_starts_and_arcs_it_did_not_change(small_fi
     position (and so its arc, not integrated again), where each had been set
     mid-interval and synced from scratch; the slip moved and the one after it are
     synced, and every start ends within CARRY_START_TOL of its target."""
-    import identify.fitting.sequence as seq
+    import identify.fitting.sequence_carry as seq
 
     prob, w = small_fit.problem, small_fit.w
     ri = 0
@@ -645,13 +645,13 @@ def test_a_run_alone_has_the_whole_problems_rows(small_fit):
     """A mode-sequence trial solves one run with the parameters held: at the fitted w
     that run's residuals are the whole problem's rows for it, so the runs' excess χ²
     add up to the whole problem's, and the run's variables map back where they were."""
-    from identify.fitting.sequence import _alone, _run_index, _split, excess_chi2
+    from identify.fitting.sequence_trials import _run_index, _split, excess_chi2, run_alone
 
     prob, w = small_fit.problem, small_fit.w
     model = prob.model
     total, rows = 0.0, []
     for i in range(len(prob.runs)):
-        sub, w_sub = _alone(prob, w, i, model, prob.opts, None)
+        sub, w_sub = run_alone(prob, w, i, model, prob.opts, None)
         assert sub.n_theta == 0 and sub.n_w == len(w_sub)
         r = sub.residuals(w_sub)
         rows.append(r)
@@ -669,7 +669,7 @@ def test_a_run_alone_maps_every_layout(small_fit, layout):
     the other layouts too (an offset per run, no start variables, free phases)."""
     from dataclasses import replace
 
-    from identify.fitting.sequence import _alone, _run_index, excess_chi2
+    from identify.fitting.sequence_trials import _run_index, excess_chi2, run_alone
 
     opts = replace(small_fit.problem.opts, **layout)
     prob = Problem(small_fit.problem.runs, small_fit.problem.model, small_fit.problem.values, opts).build()
@@ -678,7 +678,7 @@ def test_a_run_alone_maps_every_layout(small_fit, layout):
         w[prob.i_off: prob.i_off + prob.n_off] = [0.01, -0.02]  # distinct, so a mix-up shows
     total = 0.0
     for i in range(len(prob.runs)):
-        sub, w_sub = _alone(prob, w, i, prob.model, opts, None)
+        sub, w_sub = run_alone(prob, w, i, prob.model, opts, None)
         np.testing.assert_array_equal(w[_run_index(prob, i)], w_sub)
         assert sub.n_w == len(w_sub) and sub.n_off == prob.n_off // len(prob.runs)
         total += excess_chi2(sub, sub.residuals(w_sub))
@@ -690,7 +690,7 @@ def test_a_kept_change_ends_on_its_full_solve():
     short solve (whose point may violate the constraints); only a failed one does not."""
     from types import SimpleNamespace
 
-    from identify.fitting.sequence import _keep
+    from identify.fitting.sequence_trials import _keep
 
     opts = FitOptions(fixed={"v_stick": V_STICK})
     short = dict(w=np.zeros(2), f=1.0, status="Maximum_Iterations_Exceeded", success=False, iterations=4, wall_s=0.1)
@@ -704,27 +704,27 @@ def test_a_kept_change_ends_on_its_full_solve():
 
 
 def test_the_joint_solve_after_a_pass_adds_to_the_fits_count():
-    """Kept changes are solved jointly once per pass (:func:`identify.fitting.sequence._joint`):
+    """Kept changes are solved jointly once per pass (:func:`identify.fitting.sequence_trials.solve_joint`):
     its iterations and time add to those the solution carries, and it says so."""
     from types import SimpleNamespace
 
-    from identify.fitting.sequence import _joint
+    from identify.fitting.sequence_trials import solve_joint
 
     opts = FitOptions(fixed={"v_stick": V_STICK})
     said = []
     adopted = dict(w=np.zeros(2), f=1.0, status="Solve_Succeeded", success=False, iterations=40, wall_s=20.0)
     full = dict(w=np.ones(2), f=0.9, status="Solve_Succeeded", success=True, iterations=9, wall_s=1.5)
-    prob, best = _joint(SimpleNamespace(opts=None, solve=lambda w: dict(full)), adopted, opts, said.append)
+    prob, best = solve_joint(SimpleNamespace(opts=None, solve=lambda w: dict(full)), adopted, opts, said.append)
     assert best["f"] == 0.9 and best["success"] and (best["iterations"], best["wall_s"]) == (49, 21.5)
     assert prob.opts is opts and said and "re-solved" in said[0]
     failed = SimpleNamespace(opts=None, solve=lambda w: dict(full, f=np.inf))
-    prob, best = _joint(failed, adopted, opts, said.append)
+    prob, best = solve_joint(failed, adopted, opts, said.append)
     # a failed solve's point is not taken; its iterations were spent all the same, and the
     # status says the parameters were never freed (not the run-alone solve's success)
     assert best["f"] == 1.0 and not best["success"] and best["iterations"] == 49
     assert "joint solve after the kept mode-sequence changes failed" in best["status"]
     raising = SimpleNamespace(opts=None, solve=lambda w: (_ for _ in ()).throw(RuntimeError("boom")))
-    assert "joint solve" in _joint(raising, adopted, opts, said.append)[1]["status"]
+    assert "joint solve" in solve_joint(raising, adopted, opts, said.append)[1]["status"]
 
 
 def _detected_at(ev, triggers):
@@ -1818,7 +1818,7 @@ def test_worse_sequence_compares_excess_chi2():
 def test_an_unconverged_solve_near_its_solution_says_how_near():
     """Within half a standard error (and a nanometre of continuity) the flag gives the
     distance instead of distrust; beyond either, distrust with the numbers."""
-    from identify.fitting.result import _solution_gap, _unconverged_flag
+    from identify.fitting.solver_outcome import solution_gap, unconverged_flag
 
     class Stub:  # a problem whose Gauss–Newton model says what the test sets
         def __init__(self, h, c):
@@ -1827,16 +1827,16 @@ def test_an_unconverged_solve_near_its_solution_says_how_near():
         def solution_gap(self, w):
             return dict(half_chi2=self.h, continuity_um=self.c)
 
-    assert _solution_gap(Stub(0.0207, 3e-6), None)["near"]  # 0.2 standard errors
-    assert not _solution_gap(Stub(0.2, 3e-6), None)["near"]  # 0.63
-    assert not _solution_gap(Stub(0.0207, 2e-3), None)["near"]  # 2 nm off continuity
-    assert not _solution_gap(Stub(float("nan"), 0.0), None)["near"]
+    assert solution_gap(Stub(0.0207, 3e-6), None)["near"]  # 0.2 standard errors
+    assert not solution_gap(Stub(0.2, 3e-6), None)["near"]  # 0.63
+    assert not solution_gap(Stub(0.0207, 2e-3), None)["near"]  # 2 nm off continuity
+    assert not solution_gap(Stub(float("nan"), 0.0), None)["near"]
     near = dict(half_chi2=0.0207, within_se=np.sqrt(2 * 0.0207), continuity_um=3e-6, near=True)
-    flag = _unconverged_flag("Line_Search_Failed", near)
+    flag = unconverged_flag("Line_Search_Failed", near)
     assert "within ~0.2 standard errors" in flag and "not to be trusted" not in flag
     far = dict(near, continuity_um=5e-3, near=False)
-    assert "not to be trusted" in _unconverged_flag("Line_Search_Failed", far)
-    assert _unconverged_flag("Stalled", None).endswith("its interval not to be trusted")
+    assert "not to be trusted" in unconverged_flag("Line_Search_Failed", far)
+    assert unconverged_flag("Stalled", None).endswith("its interval not to be trusted")
 
 
 def test_parameter_at_bound_is_flagged(small_traces):
