@@ -292,25 +292,14 @@ class DiagnosisResult:
     def trigger_misfit_by_position(self) -> list:
         """Per model (the baseline, then the final model when an effect was added): (label,
         block position at each slip µm, static-friction misfit nm of elongation)."""
-        panels = []
-        if self.baseline is None:
-            return panels
-        models = [("baseline", self.baseline.problem, self.baseline.w)]
-        if self.effects and self.final_problem is not None:
-            models.append(("+ " + ", ".join(self.effects), self.final_problem, self.final_w))
-        for label, prob, w in models:
-            if not prob.n_trig:
-                continue
-            st = feature_values(prob, w, prob.residuals(w))["static_friction"]
-            x_um = w[prob.i_x + prob.ev_prev[prob.ev_next]] * LENGTH_UNIT * 1e6
-            panels.append((label, x_um, st.value_um * 1e3))
-        return panels
+        return [(m["label"], m["x_um"], m["misfit_nm"]) for m in self.trigger_misfit_by_run()]
 
     def trigger_misfit_by_run(self) -> list:
-        """As :meth:`trigger_misfit_by_position`, with the run of each slip: per model a
-        dict of ``label``, ``run`` (the run's name per slip), ``x_um``, ``misfit_nm`` and
-        ``sigma_nm`` (the misfit's standard deviation per slip, nm of elongation: one
-        puller step over √12, the resolution of a trigger)."""
+        """Per model (the baseline, then the final model when an effect was added), the
+        static-friction misfit at each slip: a dict of ``label``, ``run`` (the run's name
+        per slip), ``x_um`` (block position), ``misfit_nm`` and ``sigma_nm`` (the misfit's
+        standard deviation per slip, nm of elongation: one puller step over √12, the
+        resolution of a trigger)."""
         out = []
         if self.baseline is None:
             return out
