@@ -11,7 +11,6 @@ import itertools
 
 import numpy as np
 import pytest
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import to_hex
 from matplotlib.container import ErrorbarContainer
 from matplotlib.figure import Figure
@@ -23,6 +22,7 @@ from design.ranges import NOT_SIMULATED, OperatingRanges, UsabilityRules
 from design.spring_set import SpringSet, SpringSetResult, paper_spring_set
 from design.springs import LONG_SUSPENSION, SpringDesign
 from identify.plots.base import plot_regime_map
+from identify.plots.legibility import draw, legend_covers_data, legend_font_too_small, overlapping_tick_labels
 from identify.simulation.regimes import RegimeMap
 
 
@@ -31,14 +31,6 @@ def cli_axes(size=(6.5, 5.0)):
     """Axes as ``python -m design ... --plot`` makes them."""
     fig = Figure(figsize=size, layout="constrained")
     return fig.add_subplot()
-
-
-def drawn(ax):
-    fig = ax.figure
-    if not isinstance(fig.canvas, FigureCanvasAgg):
-        FigureCanvasAgg(fig)
-    fig.canvas.draw()
-    return fig.canvas.get_renderer()
 
 
 @pytest.fixture(autouse=True)
@@ -53,46 +45,15 @@ def data_lines(ax):
     return [ln for ln in ax.get_lines() if ln.get_visible()]
 
 
-def line_points_px(line, per_segment: int = 60) -> np.ndarray:
-    """Display points along a line's drawn path (segments densified), clipped to its axes."""
-    xy = line.get_transform().transform(np.asarray(line.get_xydata(), float))
-    xy = xy[np.all(np.isfinite(xy), axis=1)]
-    if len(xy) > 1:
-        s = np.linspace(0, 1, per_segment)[:, None, None]
-        xy = (xy[:-1][None] * (1 - s) + xy[1:][None] * s).reshape(-1, 2)
-    box = line.axes.get_window_extent()
-    inside = ((xy[:, 0] >= box.x0) & (xy[:, 0] <= box.x1) & (xy[:, 1] >= box.y0) & (xy[:, 1] <= box.y1))
-    return xy[inside]
-
-
-def assert_box_covers_no_data(ax, box, what: str) -> None:
-    """No line (densified) and no bar inside ``box`` (display coordinates, 1 px margin)."""
-    box = box.padded(-1)
-    for ln in data_lines(ax):
-        p = line_points_px(ln)
-        hit = (p[:, 0] > box.x0) & (p[:, 0] < box.x1) & (p[:, 1] > box.y0) & (p[:, 1] < box.y1)
-        assert not hit.any(), f"{what} covers the line {ln.get_label()!r}"
-    for patch in ax.patches:
-        if isinstance(patch, Rectangle) and patch.get_fill():
-            assert not box.overlaps(patch.get_window_extent()), f"{what} covers a bar"
-
-
 def assert_legible_legend(ax) -> None:
-    leg = ax.get_legend()
-    assert leg is not None, "no legend"
-    for t in leg.get_texts():
-        assert t.get_fontsize() >= 7, f"legend text {t.get_text()!r} at {t.get_fontsize()} pt"
-    drawn(ax)
-    assert_box_covers_no_data(ax, leg.get_window_extent(), "the legend")
+    """A legend at 7 pt or more that covers no line, marker, bar or band."""
+    assert ax.get_legend() is not None, "no legend"
+    assert legend_font_too_small(ax) == []
+    assert legend_covers_data(ax) == [], "the legend covers data"
 
 
 def assert_tick_labels_apart(ax) -> None:
-    renderer = drawn(ax)
-    for axis in (ax.xaxis, ax.yaxis):
-        boxes = [t.get_window_extent(renderer) for t in axis.get_ticklabels()
-                 if t.get_visible() and t.get_text()]
-        for a, b in itertools.combinations(boxes, 2):
-            assert not a.overlaps(b), f"{axis.axis_name} tick labels overlap"
+    assert overlapping_tick_labels(ax) == []
 
 
 def effective_order(ax, artist) -> tuple:
@@ -202,7 +163,7 @@ def test_ranges_axes_stay_on_the_grid():
 def test_ranges_ticks_name_the_grid(grid_on_table_i):
     # decade ticks (10^1, 10^2) did not say which load or frequency a row or column is
     ax = grid_on_table_i.plot(ax=cli_axes())
-    drawn(ax)
+    draw(ax.figure)
     ys = {t.get_text() for t in ax.get_yticklabels() if t.get_visible()}
     xs = {t.get_text() for t in ax.get_xticklabels() if t.get_visible()}
     assert {"1.92", "13.2", "90.3", "237"} <= ys

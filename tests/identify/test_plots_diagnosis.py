@@ -8,7 +8,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from matplotlib.colors import to_rgba
-from matplotlib.patches import Rectangle
 
 from identify.diagnosis.rounds import DiagnosisOptions
 from identify.diagnosis.where import Misfit
@@ -19,6 +18,7 @@ from identify.plots.diagnosis import (
     plot_residual_vs_position,
     save_diagnosis_plots,
 )
+from identify.plots.legibility import legend_covers_data, legend_font_too_small, overlapping_tick_labels
 
 FEATURES = ("creep_level", "static_friction_vs_rest", "post_slip_whiteness", "stick_slope", "post_slip_level",
             "time", "static_friction", "slip_length", "position")
@@ -76,52 +76,17 @@ def ax():
     plt.close("all")
 
 
-def _draw(ax):
-    ax.figure.canvas.draw()
-    return ax.figure.canvas.get_renderer()
-
-
-def _overlapping_ticks(ax) -> list:
-    r = _draw(ax)
-    bad = []
-    shown = ax.figure.bbox
-    for axis in (ax.xaxis, ax.yaxis):  # major and minor labels (a log axis labels its minor ticks)
-        labs = [t for t in axis.get_ticklabels(which="both") if t.get_visible() and t.get_text()
-                and t.get_window_extent(r).overlaps(shown)]
-        boxes = [t.get_window_extent(r) for t in labs]
-        for i in range(len(boxes)):
-            for j in range(i + 1, len(boxes)):
-                if boxes[i].overlaps(boxes[j]):
-                    bad.append((labs[i].get_text(), labs[j].get_text()))
-    return bad
-
-
 def _legend_ok(ax):
     leg = ax.get_legend()
     assert leg is not None and leg.get_texts(), "no legend"
-    assert min(t.get_fontsize() for t in leg.get_texts()) >= 7
+    assert legend_font_too_small(leg) == []
     return leg
-
-
-def _legend_covers(ax, leg) -> list:
-    """Bars and data points under the legend."""
-    r = _draw(ax)
-    box = leg.get_window_extent(r)
-    bars = [p for p in ax.patches if isinstance(p, Rectangle) and p.get_visible() and p.get_width() != 0]
-    hits = [p for p in bars if box.overlaps(p.get_window_extent(r))]
-    for line in ax.get_lines():
-        if line.get_marker() in ("None", None, "") or not len(line.get_xdata()):
-            continue
-        pts = line.get_transform().transform(np.column_stack([line.get_xdata(), line.get_ydata()]))
-        if any(box.contains(*p) for p in pts):
-            hits.append(line)
-    return hits
 
 
 # ----------------------------------------------------------------------------- gap shrinkage
 def test_gap_figure_of_a_narrow_range_has_no_overlapping_tick_labels(ax):
     plot_gap_shrinkage(_result(MEASURED), ax=ax)
-    assert _overlapping_ticks(ax) == []
+    assert overlapping_tick_labels(ax) == []
 
 
 def test_gap_bars_start_at_zero(ax):
@@ -164,7 +129,7 @@ def test_gap_legend_names_no_colour_that_no_bar_has(ax):
 def test_gap_legend_is_legible_and_covers_no_bar(ax):
     cands = [_cand(f"effect_{i}", 22.3 + 0.05 * i, 20.8, significant=i == 0) for i in range(12)]
     plot_gap_shrinkage(_result(cands), ax=ax)
-    assert _legend_covers(ax, _legend_ok(ax)) == []
+    assert legend_covers_data(ax, _legend_ok(ax)) == []
 
 
 def test_a_candidate_without_a_gap_says_why(ax):
@@ -184,8 +149,8 @@ def test_misfit_legend_is_legible_and_beside_the_bars(ax):
     plot_misfit_by_feature(_result(MEASURED, misfits=np.linspace(40, 36, len(FEATURES)), effects=["drift"],
                                    final=np.linspace(39, 35, len(FEATURES))), ax=ax)
     leg = _legend_ok(ax)
-    assert _legend_covers(ax, leg) == []
-    assert _overlapping_ticks(ax) == []
+    assert legend_covers_data(ax, leg) == []
+    assert overlapping_tick_labels(ax) == []
     labels = [t.get_text() for t in leg.get_texts()]
     assert labels[0] == "baseline" and labels[1].startswith("final model") and "drift" in labels[1]
     assert any(lab.startswith("significance threshold") for lab in labels)
@@ -210,7 +175,7 @@ def test_residuals_tell_the_runs_apart_with_a_legend(ax):
     styles = {(to_rgba(lines[r].get_color()), lines[r].get_marker()) for r in runs}
     assert len(styles) == 3  # a colour and a shape per run
     assert any(lab.startswith("±1 σ of one slip") for lab in labels)  # the misfit's uncertainty
-    assert _legend_covers(ax, leg) == []
+    assert legend_covers_data(ax, leg) == []
 
 
 def test_residuals_of_a_final_model_show_the_baseline_behind(ax):

@@ -10,6 +10,7 @@ from matplotlib.collections import PolyCollection
 
 from identify.plots.base import pyplot
 from identify.plots.events import ZOOM_SLIPS, plot_events, plot_reduced_fit, plot_reduced_rates
+from identify.plots.legibility import legend_covers_data, legend_font_too_small, overlapping_tick_labels
 from identify.traces.analyze import analyze
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "FOTAS"
@@ -40,34 +41,10 @@ def _as_analyze_does(plt, figsize=(8, 4)):
     return ax
 
 
-def _overlapping_ticks(fig) -> list:
-    fig.canvas.draw()
-    r = fig.canvas.get_renderer()
-    bad = []
-    for ax in fig.axes:
-        for axis in (ax.xaxis, ax.yaxis):
-            labs = [t for t in axis.get_ticklabels(which="both") if t.get_visible() and t.get_text()
-                    and t.get_window_extent(r).overlaps(fig.bbox)]
-            boxes = [t.get_window_extent(r) for t in labs]
-            bad += [(labs[i].get_text(), labs[j].get_text()) for i in range(len(boxes))
-                    for j in range(i + 1, len(boxes)) if boxes[i].overlaps(boxes[j])]
-    return bad
-
-
 def _legend_over_data(ax) -> list:
-    """The legend is legible (≥ 7 pt) and no point of a line of ``ax`` (frames, model,
-    curves) lies under it."""
-    leg = ax.get_legend()
-    assert leg is not None and min(t.get_fontsize() for t in leg.get_texts()) >= 7
-    ax.figure.canvas.draw()
-    box = leg.get_window_extent(ax.figure.canvas.get_renderer())
-    hits = []
-    for line in ax.get_lines():
-        if not len(line.get_xdata()):
-            continue
-        pts = line.get_transform().transform(np.column_stack([line.get_xdata(), line.get_ydata()]))
-        hits += [line.get_label()] * int(sum(box.contains(*p) for p in pts))
-    return hits
+    """The legend is legible (≥ 7 pt); what of ``ax`` (frames, model, curves, bands) lies under it."""
+    assert ax.get_legend() is not None and legend_font_too_small(ax) == []
+    return legend_covers_data(ax)
 
 
 # ----------------------------------------------------------------------------- events
@@ -88,14 +65,14 @@ def test_a_long_run_is_an_overview_above_zoomed_windows(events, plt):
         assert z.get_title(loc="left") in ("(a)", "(b)", "(c)")
     # the windows are shaded in the overview
     assert sum(1 for p in ax.patches if p.get_facecolor()[:3] != (1.0, 1.0, 1.0)) >= 3
-    assert _overlapping_ticks(fig) == []
+    assert overlapping_tick_labels(fig) == []
 
 
 @pytest.mark.parametrize("name", [LONG, SHORT])
 def test_event_legend_is_legible_and_covers_no_frame(events, plt, name):
     ax = plot_events(events[name], ax=_as_analyze_does(plt))
     assert _legend_over_data(ax) == []
-    assert _overlapping_ticks(ax.figure) == []
+    assert overlapping_tick_labels(ax.figure) == []
 
 
 def test_slip_marks_leave_the_frames_visible(events, plt):
@@ -160,7 +137,7 @@ def test_fig10_says_the_logarithmic_law_sits_at_its_bound(analysis, plt):
     assert "mu_min, q0: error > 100 %" in next(t for t in texts if t.startswith("logistic"))
     assert any("confidence band" in t for t in texts)
     assert _legend_over_data(ax) == []
-    assert _overlapping_ticks(ax.figure) == []
+    assert overlapping_tick_labels(ax.figure) == []
 
 
 def test_fig11_bands_stay_positive_on_the_log_axis(analysis, plt):
@@ -173,4 +150,4 @@ def test_fig11_bands_stay_positive_on_the_log_axis(analysis, plt):
     texts = [t.get_text() for t in ax.get_legend().get_texts()]
     assert any("t_c stuck at its lower bound" in t for t in texts)
     assert _legend_over_data(ax) == []
-    assert _overlapping_ticks(ax.figure) == []
+    assert overlapping_tick_labels(ax.figure) == []

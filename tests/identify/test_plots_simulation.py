@@ -7,8 +7,6 @@ Two short simulated runs (20 µm of travel, a few hundredths of a second each).
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -17,6 +15,13 @@ from matplotlib.figure import Figure
 
 from identify import simulate
 from identify.plots.base import plot_simulation
+from identify.plots.legibility import (
+    box_covers_data,
+    draw,
+    legend_covers_data,
+    legend_font_too_small,
+    overlapping_tick_labels,
+)
 
 
 def run(fp_Hz: float):
@@ -53,62 +58,30 @@ def figure_axes():
     return fig.subplots(5, 1, sharex=True)
 
 
-def renderer(fig):
-    if not isinstance(fig.canvas, FigureCanvasAgg):
-        FigureCanvasAgg(fig)
-    fig.canvas.draw()
-    return fig.canvas.get_renderer()
-
-
-def line_points_px(line, per_segment: int = 20) -> np.ndarray:
-    """Display points along a line's drawn path (segments densified), inside its axes."""
-    xy = line.get_transform().transform(np.asarray(line.get_xydata(), float))
-    xy = xy[np.all(np.isfinite(xy), axis=1)]
-    if len(xy) > 1:
-        s = np.linspace(0, 1, per_segment)[:, None, None]
-        xy = (xy[:-1][None] * (1 - s) + xy[1:][None] * s).reshape(-1, 2)
-    box = line.axes.get_window_extent()
-    keep = (xy[:, 0] >= box.x0) & (xy[:, 0] <= box.x1) & (xy[:, 1] >= box.y0) & (xy[:, 1] <= box.y1)
-    return xy[keep]
-
-
-def assert_covers_no_line(ax, box, what: str) -> None:
-    box = box.padded(-1)
-    for ln in ax.get_lines():
-        p = line_points_px(ln)
-        hit = (p[:, 0] > box.x0) & (p[:, 0] < box.x1) & (p[:, 1] > box.y0) & (p[:, 1] < box.y1)
-        assert not hit.any(), f"{what} covers {ln.get_label()!r}"
-
-
 @pytest.mark.parametrize("which", ["stick_slip", "creep"])
 def test_legends_and_panel_letters_cover_no_curve(which, request):
     # panel (e)'s legend lay over the friction capacity and spring force curves
     res = request.getfixturevalue(which)
     for axes in (plot_simulation(res), plot_simulation(res, axes=figure_axes())):
         fig = axes[0].figure
-        r = renderer(fig)
+        r = draw(fig)
         legends = 0
         for ax in axes:
             leg = ax.get_legend()
             if leg is not None:
                 legends += 1
-                assert all(t.get_fontsize() >= 7 for t in leg.get_texts())
-                assert_covers_no_line(ax, leg.get_window_extent(r), f"the legend of {ax.get_ylabel()!r}")
+                assert legend_font_too_small(leg) == []
+                assert legend_covers_data(ax) == [], f"the legend of {ax.get_ylabel()!r}"
             for t in ax.texts:
                 assert t.get_fontsize() >= 7
-                assert_covers_no_line(ax, t.get_window_extent(r), f"the text {t.get_text()!r}")
+                assert box_covers_data(ax, t.get_window_extent(r)) == [], f"the text {t.get_text()!r}"
         assert legends >= 2
         assert sorted(t.get_text() for ax in axes for t in ax.texts) == [f"({c})" for c in "abcde"]
 
 
 def test_tick_labels_apart(stick_slip):
     axes = plot_simulation(stick_slip, axes=figure_axes())
-    r = renderer(axes[0].figure)
-    for ax in axes:
-        for axis in (ax.xaxis, ax.yaxis):
-            boxes = [t.get_window_extent(r) for t in axis.get_ticklabels() if t.get_visible() and t.get_text()]
-            for a, b in itertools.combinations(boxes, 2):
-                assert not a.overlaps(b)
+    assert overlapping_tick_labels(axes[0].figure) == []
 
 
 def test_every_line_is_in_its_panels_legend(stick_slip):
