@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["jsonable", "dumps", "write_json"]
+__all__ = ["jsonable", "dumps", "write_json", "SavedResult"]
 
 
 def jsonable(x: Any) -> Any:
@@ -46,3 +46,27 @@ def write_json(path: str | Path, data: Any) -> Path:
     p.parent.mkdir(parents=True, exist_ok=True)
     p.write_text(dumps(data) + "\n", encoding="utf-8")
     return p
+
+
+class SavedResult:
+    """The part of the result protocol every result shares: ``to_dict()`` (strict-JSON
+    values), ``save(path)`` and ``load(path)``. A result class gives ``to_json()`` and
+    ``from_dict(d)``; ``from_dict(r.to_dict())`` gives back a result with the same
+    ``to_dict()``."""
+
+    def to_json(self) -> dict:  # (each result writes its own)
+        raise NotImplementedError
+
+    def to_dict(self) -> dict:
+        """The result as plain JSON values (null where a number is not finite)."""
+        return jsonable(self.to_json())
+
+    def save(self, path) -> Path:
+        """Write the result as strict JSON to ``path``; :meth:`load` reads it back."""
+        return write_json(path, self.to_dict())
+
+    @classmethod
+    def load(cls, path):
+        """A result saved by :meth:`save` (or written by the command line's ``--json``)."""
+        with open(path, encoding="utf-8") as fh:
+            return cls.from_dict(json.load(fh))

@@ -11,8 +11,9 @@ import numpy as np
 
 from identify.diagnosis.features import feature_values
 from identify.diagnosis.regime_screen import moved_text, parting, smallest_moves
+from identify.diagnosis.where import Misfit
 from identify.fitting.convergence import GAVE_UP, STALLED
-from identify.jsonio import write_json
+from identify.jsonio import SavedResult
 from identify.model.effects import EFFECTS, display, get_effect
 from identify.model.symbolic import LENGTH_UNIT
 
@@ -103,7 +104,7 @@ class DiagnosisOptions:
 
 # ----------------------------------------------------------------------------- result
 @dataclass
-class DiagnosisResult:
+class DiagnosisResult(SavedResult):
     """The outcome of :func:`diagnose`."""
 
     verdict: str
@@ -283,11 +284,42 @@ class DiagnosisResult:
                          magnitude_check=self.options.magnitude_check),
             timing=self.timing, notes=self.notes, regime_screen=self.regime_screen, regime_moves=self.regime_moves,
             regime_profile=self.regime_profile,
+            # each round's measurement of the current model (the report's gaps; ``rounds`` lists candidates only)
+            current_model=[next(({**_cand_json(c), "gap": c.get("gap"), "heldout": c.get("heldout")}
+                                 for c in rnd if c.get("effect") is None), None) for rnd in self.rounds],
         )
 
+    @classmethod
+    def from_dict(cls, d: dict) -> DiagnosisResult:
+        """A diagnosis read back from :meth:`to_dict` (or ``identify diagnose --json``): its
+        report, JSON and misfit figure as they were; without the fitted problems, so no
+        figure that needs the model's solution (:meth:`save_plots` draws what it can)."""
+        from identify.fitting.result import FitResult
+
+        current = d.get("current_model") or [None] * len(d.get("rounds", []))
+        rounds = [([base] if base is not None else []) + list(rnd) for base, rnd in zip(current, d.get("rounds", []))]
+        o = d.get("options") or {}
+        opts = DiagnosisOptions(**{k: o[k] for k in ("effects", "folds", "alpha", "workers", "gap_tolerance",
+                                                     "resequence", "magnitude_check") if k in o})
+        return cls(verdict=d["verdict"], effects=list(d.get("effects", [])),
+                   where=[Misfit.from_json(m) for m in d.get("where", [])],
+                   where_final=[Misfit.from_json(m) for m in d.get("where_final", [])],
+                   candidates=list(d.get("candidates", [])), rounds=rounds,
+                   baseline=FitResult.from_dict(d["baseline"]) if d.get("baseline") else None,
+                   final=dict(d.get("final") or {}), confounded=list(d.get("confounded", [])), options=opts,
+                   timing=dict(d.get("timing") or {}), notes=list(d.get("notes", [])),
+                   regime_screen=list(d.get("regime_screen") or []), regime_moves=list(d.get("regime_moves") or []),
+                   regime_profile=d.get("regime_profile"))
+
     def save_json(self, path) -> Path:
-        """Strict JSON: non-finite numbers are written as null."""
-        return write_json(path, self.to_json())
+        """Strict JSON: non-finite numbers are written as null (the same as :meth:`save`)."""
+        return self.save(path)
+
+    def plot(self, ax=None):
+        """Where the misfit lives: each feature's misfit, baseline and final model."""
+        from identify.plots.diagnosis import plot_misfit_by_feature
+
+        return plot_misfit_by_feature(self, ax=ax)
 
     def trigger_misfit_by_position(self) -> list:
         """Per model (the baseline, then the final model when an effect was added): (label,

@@ -59,6 +59,14 @@ class Misfit:
     # the largest misfit a feature is given: a p-value below double precision's reach says only "more"
     cap_sigma: ClassVar[float] = MAX_SIGMA
 
+    @classmethod
+    def from_json(cls, d: dict) -> Misfit:
+        """A misfit from :meth:`to_json` (its array-valued extras are not in the JSON)."""
+        known = ("feature", "misfit_sigma", "p_value", "statistic", "detail")
+        nan = float("nan")
+        return cls(**{k: (nan if d.get(k) is None and k in ("misfit_sigma", "p_value", "statistic") else d.get(k))
+                      for k in known}, extra={k: v for k, v in d.items() if k not in known})
+
     def to_json(self) -> dict:
         return dict(feature=self.feature, misfit_sigma=self.misfit_sigma, p_value=self.p_value,
                     statistic=self.statistic, detail=self.detail, **{k: v for k, v in self.extra.items()

@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from identify.jsonio import SavedResult
+
 __all__ = ["ParameterEstimate", "Profile", "number_from_json", "pair_from_json"]
 
 
@@ -54,7 +56,7 @@ class ParameterEstimate:
 
 
 @dataclass
-class Profile:
+class Profile(SavedResult):
     """Profile likelihood of one parameter: Δχ² against its value.
 
     ``values``, ``delta_chi2``: the points whose constrained fit converged (the only ones
@@ -107,6 +109,25 @@ class Profile:
                    open_below=und in ("below", "both"), open_above=und in ("above", "both"),
                    failed=np.array(d.get("failed") or [], float), reach=pair_from_json(d.get("reach")),
                    better=pair_from_json(d.get("better")))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Profile:
+        """A profile from :meth:`to_dict` (the result protocol's name for :meth:`from_json`)."""
+        return cls.from_json(d)
+
+    def report(self) -> str:
+        """The profile as text: its 95 % interval, the points it rests on and what it leaves open."""
+        lines = [f"Profile likelihood of {self.name}: 95% interval {self.interval_text()} "
+                 f"(Δχ² threshold {self.threshold:.3g}; {len(self.values)} converged point(s)"
+                 + (f", {len(self.failed)} not converged" if len(self.failed) else "") + ")"]
+        if self.undetermined:
+            lines.append(f"    undetermined {self.undetermined}: the data do not bound {self.name} that way"
+                         + (f" over [{self.reach[0]:.4g}, {self.reach[1]:.4g}]" if self.reach else ""))
+        if self.better:
+            lines.append(f"    a constrained fit beat the fit at {self.better[0]:.4g} (Δχ² {self.better[1]:.3g}): "
+                         "the fit's optimum is a local one")
+        lines += [f"    {v:12.6g}  Δχ² {dc:10.4g}" for v, dc in zip(self.values, self.delta_chi2)]
+        return "\n".join(lines)
 
     def plot(self, ax=None):
         from identify.plots.fit import plot_profile

@@ -305,6 +305,14 @@ class FitResult:
         offset = float(w[prob.i_off + i_run] * LENGTH_UNIT) if prob.n_off else 0.0
         return prob.runs[i_run].events, step, levels, offset
 
+    def plot(self, ax=None):
+        """The fit's headline figure: every slip's static friction against its rest, with
+        the fitted law and its 95 % band (:func:`identify.plots.fit.plot_static_friction`)."""
+        from identify.plots.fit import plot_static_friction
+
+        self._needs_problem("plot")
+        return plot_static_friction(self, ax=ax)
+
     def save_plots(self, folder) -> list:
         from identify.plots.fit import save_fit_plots
 

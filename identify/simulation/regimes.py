@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from identify.jsonio import SavedResult
 from identify.progress import Stage, reporter
 from identify.simulation.hybrid import SimulationOptions, simulate
 
@@ -22,7 +23,7 @@ log = logging.getLogger(__name__)
 
 
 @dataclass
-class RegimeMap:
+class RegimeMap(SavedResult):
     """Regimes over a (normal load, step frequency) grid for one spring.
 
     Attributes
@@ -58,8 +59,37 @@ class RegimeMap:
             regimes=self.regimes.tolist(),
             n_slips=self.n_slips.tolist(),
             mean_slip_um=np.where(np.isfinite(self.mean_slip_um), self.mean_slip_um, None).tolist(),
+            mean_peak_elongation_um=np.where(np.isfinite(self.mean_peak_elongation_um),
+                                             self.mean_peak_elongation_um, None).tolist(),
+            wall_time_s=np.asarray(self.wall_time_s, float).tolist(),
             errors=list(self.errors),
         )
+
+    @classmethod
+    def from_dict(cls, d: dict) -> RegimeMap:
+        """A map read back from :meth:`to_dict` (or ``identify regimes --json``)."""
+        loads, fps = np.asarray(d["normal_loads_uN"], float), np.asarray(d["step_frequencies_Hz"], float)
+        shape = (len(loads), len(fps))
+
+        def grid(key, dtype=float):  # (null -> NaN; older files lack the keys written later)
+            v = d.get(key)
+            if v is None:
+                return np.full(shape, np.nan)
+            return np.array([[np.nan if x is None else x for x in row] for row in v], dtype).reshape(shape)
+
+        return cls(coating=d["coating"], spring_constant_N_per_m=float(d["spring_constant_N_per_m"]),
+                   stick_speed_m_per_s=float(d["stick_speed_m_per_s"]), travel_um=d.get("travel_um"),
+                   normal_loads_uN=loads, step_frequencies_Hz=fps,
+                   regimes=np.array(d["regimes"], dtype=object).astype(str).reshape(shape),
+                   n_slips=np.array(d["n_slips"], int).reshape(shape), mean_slip_um=grid("mean_slip_um"),
+                   mean_peak_elongation_um=grid("mean_peak_elongation_um"), wall_time_s=grid("wall_time_s"),
+                   errors=list(d.get("errors", [])))
+
+    def report(self) -> str:
+        """The map as text (:meth:`table`) with the runs that could not be simulated."""
+        head = (f"Regime map: {self.coating}, k = {self.spring_constant_N_per_m:g} N/m, "
+                f"stick option {self.stick_speed_m_per_s:g} m/s")
+        return "\n".join([head, self.table(), *(f"error: {e}" for e in self.errors)])
 
     def table(self) -> str:
         """The map as text: rows Nb, columns fp, one letter per regime."""
