@@ -134,6 +134,13 @@ class AnalyzeResult:
             )
         )
 
+    def plot(self, ax=None):
+        """The analysis's headline figure, the paper's Fig. 10: static friction against rest
+        time with the laws fitted across runs and their 95 % bands."""
+        if self.fit is None:
+            raise ValueError("plot: no run could be analysed, so no law was fitted to draw")
+        return self.fit.plot(ax=ax)
+
     def save_plots(self, directory: str | os.PathLike) -> list[Path]:
         """Write ``events_<run>.png`` per run, ``fig10_static_friction.png`` and
         ``fig11_aging_rates.png``; returns the paths written."""

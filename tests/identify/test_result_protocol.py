@@ -71,3 +71,11 @@ def test_fit_result_plot_draws_the_headline_figure(small_fit, close_figures):
     assert "static friction" in ax.get_ylabel()
     with pytest.raises(ValueError, match="no fitted problem"):
         type(small_fit).from_dict(small_fit.to_dict()).plot()
+
+
+def test_analysis_plot_draws_fig10(close_figures):
+    from pathlib import Path
+
+    res = identify.analyze([str(Path(__file__).resolve().parents[2] / "data" / "FOTAS")])
+    ax = res.plot()
+    assert "static friction" in ax.get_ylabel()
