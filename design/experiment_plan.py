@@ -10,6 +10,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from identify.jsonio import SavedResult
+
+from .candidates import Candidate
 from .information import STICK_SPEED
 
 __all__ = ["ExperimentPlan", "geometric_mean_relative"]
@@ -24,8 +27,27 @@ def geometric_mean_relative(se: Mapping[str, float], nominal: Mapping[str, float
     return float(np.exp(np.mean(np.log(rel))))
 
 
+def _finite_or_nan(x):
+    """``x`` with every None (a non-finite number in strict JSON) read back as NaN,
+    through dicts and lists."""
+    if x is None:
+        return float("nan")
+    if isinstance(x, dict):
+        return {k: _finite_or_nan(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite_or_nan(v) for v in x]
+    return x
+
+
+def _candidate(d: Mapping) -> Candidate:
+    return Candidate(d["spring_constant_N_per_m"], d["normal_load_uN"], d["step_frequency_Hz"], d["travel_um"])
+
+
+_CANDIDATE_KEYS = ("spring_constant_N_per_m", "normal_load_uN", "step_frequency_Hz", "travel_um")
+
+
 @dataclass
-class ExperimentPlan:
+class ExperimentPlan(SavedResult):
     """A plan (runs, replicates allowed), its criterion and predicted standard errors,
     beside a reference plan of the same size."""
 
@@ -120,6 +142,31 @@ class ExperimentPlan:
             candidates=[dict(c.to_json(), **{k: v for k, v in s.items() if k != "information"})
                         for c, s in self.candidates],
             **({"monte_carlo": self.monte_carlo} if self.monte_carlo else {}),
+        )
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ExperimentPlan:
+        """The plan back from :meth:`to_json` (or :meth:`to_dict`, a saved file). The
+        candidates' information matrices are not in the JSON: their summaries are."""
+        ref = d["reference_plan"]
+        mc = d.get("monte_carlo")
+        return cls(
+            coating=d["coating"], criterion=d["criterion"], free=tuple(d["free"]), nominal=dict(d["nominal"]),
+            plan=[_candidate(c) for c in d["plan"]],
+            predicted_stderr=_finite_or_nan(dict(d["predicted_stderr"])),
+            criterion_value=_finite_or_nan(d["criterion_value"]),
+            reference_plan=[_candidate(c) for c in ref["plan"]],
+            reference_stderr=_finite_or_nan(dict(ref["predicted_stderr"])),
+            reference_criterion_value=_finite_or_nan(ref["criterion_value"]),
+            fisher_stderr=_finite_or_nan(dict(d.get("fisher_stderr") or {})),
+            reference_fisher_stderr=_finite_or_nan(dict(ref.get("fisher_stderr") or {})),
+            reference_note=ref.get("note") or "",
+            stick_speed_m_per_s=float(d.get("stick_speed_m_per_s", STICK_SPEED)),
+            candidates=[(_candidate(c), {k: v for k, v in c.items() if k not in _CANDIDATE_KEYS})
+                        for c in d.get("candidates") or ()],
+            enumeration=dict(d.get("enumeration") or {}),
+            prior_used=bool(d.get("prior_used", False)),
+            monte_carlo=_finite_or_nan(mc) if mc else None,
         )
 
     def plot(self, ax=None):

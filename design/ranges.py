@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from identify.fitting.stick_choice import STICK_SPEED_AUTO
+from identify.jsonio import SavedResult
 from identify.model.params import parameter_set
 from identify.simulation.regimes import regime_map
 
@@ -85,7 +86,7 @@ class UsabilityRules:
 
 
 @dataclass
-class OperatingRanges:
+class OperatingRanges(SavedResult):
     """Usable (Nb, fp) points of one spring, and why every other point is not.
 
     Attributes
@@ -226,6 +227,7 @@ class OperatingRanges:
                 "usable": not self.failed[i, j],
                 "reason": self.reason(i, j) or None,
                 "failed_rules": [rule for rule, _ in self.failed[i, j]],
+                "failed_messages": [msg for _, msg in self.failed[i, j]],
                 "mean_slip_um": num(self.mean_slip_um[i, j]),
                 "n_slips": int(self.n_slips[i, j]) if self.regimes[i, j] != NOT_SIMULATED else None,
             }
@@ -240,6 +242,7 @@ class OperatingRanges:
             "normal_load_range_uN": [float(x) for x in self.normal_load_range_uN],
             "rules": {
                 "min_slip_um": self.rules.min_slip_m * 1e6,
+                "min_slip_m": self.rules.min_slip_m,
                 "min_slips": int(self.rules.min_slips),
                 "max_frame_rate_Hz": self.rules.max_frame_rate_Hz,
                 "frames_per_step": self.rules.frames_per_step,
@@ -256,6 +259,44 @@ class OperatingRanges:
             "usable_region": self.usable_region,
             "errors": list(self.errors),
         }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> OperatingRanges:
+        """The ranges back from :meth:`to_json` (or :meth:`to_dict`, a saved file): the
+        per-point verdicts with their messages, the grid and the rules."""
+        loads = np.asarray(d["normal_loads_uN"], float)
+        fps = np.asarray(d["step_frequencies_Hz"], float)
+        shape = (loads.size, fps.size)
+        points = d["points"]
+        if len(points) != loads.size * fps.size:
+            raise ValueError(f"OperatingRanges: {len(points)} points for a {shape[0]} x {shape[1]} grid")
+        failed = np.empty(len(points), dtype=object)
+        for n, p in enumerate(points):
+            rules = list(p.get("failed_rules") or ())
+            msgs = list(p.get("failed_messages") or ())
+            if len(msgs) != len(rules):  # (a file written before the messages were kept)
+                msgs = (p.get("reason") or "").split("; ")
+                msgs = msgs if len(msgs) == len(rules) else rules
+            failed[n] = tuple(zip(rules, msgs))
+        r = d["rules"]
+        min_slip_m = r["min_slip_m"] if r.get("min_slip_m") is not None else r["min_slip_um"] * 1e-6
+        return cls(
+            coating=d["coating"],
+            spring_constant_N_per_m=float(d["spring_constant_N_per_m"]),
+            stick_speed_m_per_s=float(d["stick_speed_m_per_s"]),
+            travel_um=float(d["travel_um"]),
+            rules=UsabilityRules(min_slip_m, int(r["min_slips"]), r["max_frame_rate_Hz"], r["frames_per_step"]),
+            normal_load_range_uN=tuple(float(x) for x in d["normal_load_range_uN"]),
+            normal_loads_uN=loads,
+            step_frequencies_Hz=fps,
+            regimes=np.array([NOT_SIMULATED if p["regime"] is None else p["regime"] for p in points],
+                             dtype=str).reshape(shape),
+            failed=failed.reshape(shape),
+            mean_slip_um=np.array([np.nan if p["mean_slip_um"] is None else p["mean_slip_um"] for p in points],
+                                  float).reshape(shape),
+            n_slips=np.array([p["n_slips"] or 0 for p in points], int).reshape(shape),
+            errors=list(d.get("errors") or ()),
+        )
 
     def plot(self, ax=None):
         """Regime map over (Nb, fp) with the excluded points hatched and Table I's Nb limits."""

@@ -13,8 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from identify.jsonio import SavedResult
+
 from . import constraints as tc
-from .springs import ETCH_BIAS_UM, SpringDesign, paper_springs
+from .springs import ETCH_BIAS_UM, SpringDesign, Suspension, paper_springs
 
 __all__ = ["SpringSet", "paper_spring_set", "to_uN", "format_load_range_uN"]
 
@@ -30,7 +32,7 @@ def format_load_range_uN(lo: float, hi: float) -> str:
 
 
 @dataclass(frozen=True)
-class SpringSet:
+class SpringSet(SavedResult):
     """Springs judged against a requested load range at an etch-bias uncertainty.
 
     Parameters
@@ -239,7 +241,18 @@ class SpringSet:
             ],
             "gaps_uN": [[to_uN(a), to_uN(b)] for a, b in self.gaps],
             "uncovered_uN": [[to_uN(a), to_uN(b)] for a, b in self.uncovered],
+            "load_range_N": list(self.load_range),
+            "etch_bias_um": self.etch_bias_um,
+            "label": self.label,
         }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SpringSet:
+        """The set back from :meth:`to_json`: the springs (width and suspension), the
+        requested range (N) and the etch bias; every measure follows from them."""
+        springs = [SpringDesign(s["width_um"], Suspension.from_json(s["suspension"])) for s in d["springs"]]
+        load_range = d.get("load_range_N") or [x * 1e-6 for x in d["load_range_uN"]]
+        return cls(springs, tuple(load_range), d.get("etch_bias_um", ETCH_BIAS_UM), d.get("label", ""))
 
     def report_lines(self) -> list[str]:
         ks, kt = self.spring_constant_ranges

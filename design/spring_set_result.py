@@ -6,7 +6,10 @@ writes the readable report and the JSON of ``python -m design springs``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+
+from identify.jsonio import SavedResult
 
 from . import constraints as tc
 from .spring_coverage import SpringSet, format_load_range_uN, to_uN
@@ -25,7 +28,7 @@ class Attempt:
 
 
 @dataclass(frozen=True)
-class SpringSetResult:
+class SpringSetResult(SavedResult):
     """An optimised spring set, the paper's set under the same measures, and the evidence.
 
     Attributes
@@ -127,6 +130,9 @@ class SpringSetResult:
                     for a in self.attempts
                 ],
                 "notes": list(self.notes),
+                "n_solves": self.n_solves,
+                "n_starts": self.n_starts,
+                "n_best_found": self.n_best_found,
                 "margin_definition": (
                     "natural-log ratios: low end ln(L_lo/lo_1), overlap i|i+1 ln(hi_i/lo_{i+1}), "
                     "high end ln(hi_n/L_hi); lo_i = k_stiff·90 nm/0.1, hi_i = k_soft·100 µm/0.9 "
@@ -135,6 +141,24 @@ class SpringSetResult:
             }
         )
         return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SpringSetResult:
+        """The result back from :meth:`to_json` (or :meth:`to_dict`, a saved file or the
+        ``--json`` of ``python -m design springs``)."""
+        req = d.get("requested_load_range_uN")
+        return cls(
+            spring_set=SpringSet.from_dict(d),
+            reference=SpringSet.from_dict(d["reference"]),
+            requested_load_range_uN=tuple(req) if req else None,
+            # (a null margin: no start converged with that many springs, -inf in the result)
+            attempts=tuple(Attempt(a["n_springs"], -math.inf if a["worst_margin"] is None else a["worst_margin"],
+                                   a["covers"]) for a in d["attempts"]),
+            notes=tuple(d.get("notes") or ()),
+            n_solves=d.get("n_solves", 0),
+            n_starts=d.get("n_starts", 1),
+            n_best_found=d.get("n_best_found", 1),
+        )
 
     def plot(self, ax=None):
         """Fig. 3: the Table I region in the k–Nb plane with this set and the paper's."""

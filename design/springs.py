@@ -277,7 +277,16 @@ class Suspension:
             "n_parallel": self.n_parallel,
             "n_series": self.n_series,
             "width_bounds_um": [self.min_width_um, self.max_width_um],
+            "etch_bias_um": self.etch_bias_um,
         }
+
+    @classmethod
+    def from_json(cls, d: dict) -> Suspension:
+        """The suspension back from :meth:`to_json` (default etch bias when it is absent)."""
+        lo, hi = d["width_bounds_um"]
+        return cls(length_um=d["length_um"], thickness_um=d["thickness_um"], youngs_modulus=d["youngs_modulus_Pa"],
+                   n_parallel=d["n_parallel"], n_series=d["n_series"], min_width_um=lo, max_width_um=hi,
+                   etch_bias_um=d.get("etch_bias_um", ETCH_BIAS_UM), name=d["name"])
 
 
 PAPER_SUSPENSION = Suspension()
