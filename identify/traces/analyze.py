@@ -134,6 +134,10 @@ class AnalyzeResult:
             )
         )
 
+    def to_dict(self) -> dict:
+        """The analysis as plain JSON values (what ``identify analyze --json`` writes)."""
+        return self.to_json()
+
     def plot(self, ax=None):
         """The analysis's headline figure, the paper's Fig. 10: static friction against rest
         time with the laws fitted across runs and their 95 % bands."""

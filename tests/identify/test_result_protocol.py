@@ -79,3 +79,4 @@ def test_analysis_plot_draws_fig10(close_figures):
     res = identify.analyze([str(Path(__file__).resolve().parents[2] / "data" / "FOTAS")])
     ax = res.plot()
     assert "static friction" in ax.get_ylabel()
+    assert res.to_dict() == res.to_json() and res.report().startswith("Analysis of")
