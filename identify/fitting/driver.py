@@ -25,7 +25,14 @@ from identify.fitting.problem import Problem
 from identify.fitting.rundata import RunData, make_run_data
 from identify.fitting.sequence_decision import decide_sequence
 from identify.fitting.start_values import AUTO_SEED, spread_starts, start_values
-from identify.fitting.suspect import SAME_SOLUTION_TOL, at_bound, flag_rivals, improbable, suspect_reason
+from identify.fitting.suspect import (
+    SAME_SOLUTION_TOL,
+    at_bound,
+    flag_rivals,
+    improbable,
+    suspect_reason,
+    tau_beyond_rests,
+)
 from identify.model.laws import get_law
 from identify.model.params import parameter_set
 from identify.model.symbolic import Model
@@ -466,7 +473,8 @@ def _spread_if_suspect(solves: _Solves, best, start, start_source, opts, preset,
     the first one reached. (best, start, start_source, rivals: the converged solutions of
     the final problem, for the uniqueness check)."""
     prob = solves.prob
-    why = suspect_reason(prob, best) or at_bound(prob, best) or improbable(prob, best)
+    why = (suspect_reason(prob, best) or at_bound(prob, best) or improbable(prob, best)
+           or tau_beyond_rests(prob, best))
     if not (why and opts.auto_starts):
         return best, start, start_source, []
     auto = spread_starts(prob, best["w"], opts.auto_starts,

@@ -77,12 +77,23 @@ def start_values(runs: list, law, preset: dict, opts: FitOptions) -> tuple[dict,
 AUTO_SEED = 20261127  # the spread starts' seed when the options give none (a fit repeats itself)
 
 
+def tau_span(prob) -> tuple[float, float] | None:
+    """The aging times the data's rests can tell apart, (s, s): a tenth of the shortest
+    rest between slips to three times the longest (None without two slips in a run).
+    Below it every slip starts fully aged, above it μs grows linearly with the rest and
+    only μmax − ψ over τ counts: either way the χ² is flat in τ."""
+    rests = np.concatenate([np.diff(r.trigger_steps) / r.fp for r in prob.runs
+                            if r.trigger_steps is not None and len(r.trigger_steps) > 1] or [np.zeros(0)])
+    rests = rests[rests > 0]
+    return (0.1 * float(rests.min()), 3.0 * float(rests.max())) if rests.size else None
+
+
 def spread_ranges(prob, w_ref: np.ndarray, preset: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The plausible range of each free parameter, scaled (lo, hi), inside the search
     bounds: around the suspect solution ``w_ref`` (a decade either side for log-scaled
     parameters, ±40 % for the others) and, so that a parameter collapsed onto a bound is
     not searched only there, around the coating's ``preset`` as well; a time constant
-    (τ) also over the data's rests, a tenth of the shortest to three times the longest."""
+    (τ) also over :func:`tau_span`."""
     tm, k = prob.theta, prob.n_theta
     th0 = np.asarray(w_ref[:k], float)
     half = np.where(tm.log, np.log(10.0), 0.4 * np.maximum(np.abs(th0), 1e-3))
@@ -93,14 +104,12 @@ def spread_ranges(prob, w_ref: np.ndarray, preset: dict | None = None) -> tuple[
             thp = tm.to_scaled(known)
             half_p = np.where(tm.log, np.log(10.0), 0.4 * np.maximum(np.abs(thp), 1e-3))
             lo, hi = np.minimum(lo, thp - half_p), np.maximum(hi, thp + half_p)
-    rests = np.concatenate([np.diff(r.trigger_steps) / r.fp for r in prob.runs
-                            if r.trigger_steps is not None and len(r.trigger_steps) > 1] or [np.zeros(0)])
-    rests = rests[rests > 0]
-    if rests.size and "tau" in tm.names:
+    span = tau_span(prob)
+    if span is not None and "tau" in tm.names:
         j = tm.names.index("tau")
         if tm.log[j]:
-            lo[j] = min(lo[j], np.log(0.1 * rests.min() / tm.scale[j]))
-            hi[j] = max(hi[j], np.log(3.0 * rests.max() / tm.scale[j]))
+            lo[j] = min(lo[j], np.log(span[0] / tm.scale[j]))
+            hi[j] = max(hi[j], np.log(span[1] / tm.scale[j]))
     return np.maximum(lo, tm.lo + 1e-9), np.minimum(hi, tm.hi - 1e-9)
 
 

@@ -35,6 +35,28 @@ def at_bound(prob, res) -> str:
     return f"{', '.join(at)} at a bound" if at else ""
 
 
+def tau_beyond_rests(prob, res) -> str:
+    """'' unless a free τ of the solution ``res`` lies outside the aging times the rests
+    can tell apart (:func:`~identify.fitting.start_values.tau_span`): there the χ² is flat
+    in τ, and the solver stops on the plateau without having compared it with the valley
+    the rests define (then: where it lies)."""
+    from identify.fitting.start_values import tau_span
+
+    tm = prob.theta
+    if "tau" not in tm.names or not np.isfinite(res.get("f", np.inf)):
+        return ""
+    span = tau_span(prob)
+    if span is None:
+        return ""
+    th = np.atleast_1d(tm.from_scaled(np.asarray(res["w"][: prob.n_theta], float)))
+    tau = float(th[tm.names.index("tau")])
+    if tau < span[0]:
+        return f"tau {tau:.3g} s below a tenth of the shortest rest ({10 * span[0]:.3g} s)"
+    if tau > span[1]:
+        return f"tau {tau:.3g} s above three times the longest rest ({span[1] / 3:.3g} s)"
+    return ""
+
+
 SPREAD_P = 0.01
 """A converged solution whose χ² the noise would exceed less often than this gets the
 spread starts too: with thousands of frames a local minimum can sit at reduced χ² 1.05,

@@ -4,6 +4,7 @@ and (slow) seeded parameter recovery."""
 import functools
 import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -2014,9 +2015,43 @@ def test_spread_starts_cover_each_parameter_range_once_per_stratum(small_traces)
     rests = np.concatenate([np.diff(r.trigger_steps) / r.fp for r in prob.runs])
     assert np.exp(hi_bad[j]) * tm.scale[j] >= max(3 * rests.max(), 10 * values["tau"]) * 0.999
     assert at_bound(prob, dict(f=1.0, w=w0)) == ""
+    # a τ a tenth of the shortest rest or below sits where the χ² is flat in τ: suspect,
+    # and likewise above three times the longest rest; inside, not
+    from identify.fitting.suspect import tau_beyond_rests
+
+    assert tau_beyond_rests(prob, dict(f=1.0, w=w0)) == ""
+    for tau, word in ((0.05 * rests.min(), "below"), (6 * rests.max(), "above")):
+        w_tau = w0.copy()
+        w_tau[j] = np.log(tau / tm.scale[j])
+        assert word in tau_beyond_rests(prob, dict(f=1.0, w=w_tau))
     w_lo = w0.copy()
     w_lo[tm.names.index("A")] = tm.lo[tm.names.index("A")]
     assert at_bound(prob, dict(f=1.0, w=w_lo)) == "A at a bound"
+
+
+@pytest.mark.slow
+def test_a_tau_collapsed_below_every_rest_is_searched_past():
+    """Robustness clean set 16 (6 FOTAS runs, τ 26 ms): from the plain start the solver
+    converged at τ = 43 µs, far below the shortest rest, where every slip starts fully aged
+    and the χ² is flat in τ; reduced χ² 1.026 looked like noise, so no spread start ran,
+    and the fit sat 28 in χ² above the truth-started one. A τ outside the rests' span now
+    gets the spread starts (measured: χ² 5419.8, the truth-started fit's, 17 s)."""
+    import sys as _sys
+
+    _sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+    import bench_fit
+
+    truth, traces = bench_fit._clean_set(16, 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = fit(traces, coating="FOTAS", options=FitOptions(stick_speed="auto", seed=16, threads=1))
+        ref = fit(traces, coating="FOTAS", options=FitOptions(
+            fixed={"v_stick": bench_fit.V_STICK}, start={n: truth[n] for n in bench_fit.FREE},
+            staged_start=False, auto_starts=0, threads=1))
+    assert "tau" in res.start_source and "spread starts" in res.start_source
+    assert res.chi2 <= ref.chi2 + bench_fit.CHI2_SLACK
+    lo, hi = res.parameters["tau"].ci95
+    assert lo <= truth["tau"] <= hi
 
 
 def test_a_saved_fit_loads_back_with_the_same_report(small_fit, tmp_path, strict_json):
