@@ -116,6 +116,13 @@ GALLERY: dict[str, Section] = {
          Figure("experiment.png", "design_experiment.png", "Experiment plan",
                 "Predicted relative standard errors of each parameter for a D-optimal plan of four runs and "
                 "for the paper's conditions.", draws=("ExperimentPlan.plot",)))),
+    "lab": Section(
+        "Laboratory data: a velocity step", "``identify.fit_transient(...).plot()``; "
+        "``python -m identify import ...`` then ``python -m identify fit DATA --law aging --plots DIR``",
+        (Figure("transient_*.png", "lab_velocity_step.png", "A velocity step fitted with the aging law",
+                "The Penn State p655 gouge (data/real/p655): friction against load-point displacement through "
+                "the step 2.28 → 22.85 µm/s at 100 MPa, the aging law fitted at the lab's stiffness 1e-3/µm; "
+                "data − model below.", draws=("plot_transient_fit",)),)),
 }
 
 
@@ -192,8 +199,19 @@ def make_design(folder: Path) -> None:
     draw(design_experiment(4, "FOTAS"), "experiment.png")
 
 
+def make_lab(folder: Path) -> None:
+    import identify
+
+    p655 = HERE.parent / "data" / "real" / "p655"
+    look = identify.apply_recipe(identify.read_look(p655 / "p655intact100l"), p655 / "p655_r-reduction.txt")
+    trace = identify.import_run(look, friction="mu", time="Time", load_point="LP_disp", stiffness_per_um=1e-3,
+                                window_s=(3847.35, 3857.35), velocities_um_per_s=[2.28, 22.85], name="p655").trace
+    res = identify.fit_transient(identify.TransientRun.from_trace(trace), law="aging")
+    _save(res.plot()[0].figure, folder / "transient_p655.png")
+
+
 MAKERS = {"simulate": make_simulate, "regimes": make_regimes, "analyze": make_analyze, "fit": make_fit,
-          "diagnose": make_diagnose, "design": make_design}
+          "diagnose": make_diagnose, "design": make_design, "lab": make_lab}
 
 
 # ----------------------------------------------------------------------------- output
@@ -215,7 +233,8 @@ def keep(folder: Path, fig: Figure) -> Path:
 
 def page_text() -> str:
     lines = ["Figure gallery", "==============", "",
-             "Every kind of figure the toolkit makes, on the bundled data (``data/FOTAS``). The images and",
+             "Every kind of figure the toolkit makes, on the bundled data (``data/FOTAS``; ``data/real`` for",
+             "the laboratory recording). The images and",
              "this page are regenerated together by one command::", "", "    python docs/make_gallery.py", "",
              "Every call and command named below also writes each figure as PDF.", ""]
     for sec in GALLERY.values():

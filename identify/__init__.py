@@ -10,6 +10,8 @@ except PackageNotFoundError:  # a source tree that was never installed
 from identify.diagnosis.rounds import DiagnosisOptions, DiagnosisResult, diagnose
 from identify.fitting.driver import FitError, FitOptions, fit
 from identify.fitting.result import FitResult
+from identify.fitting.transient import TransientFitError, TransientRun, fit_transient
+from identify.fitting.transient_result import TransientFitResult
 from identify.model.laws import LAWS, get_law
 from identify.model.params import (
     PARAMETER_SETS,
@@ -18,11 +20,15 @@ from identify.model.params import (
     normal_load_from_voltage,
     parameter_set,
 )
+from identify.model.rsf import VelocityDrive, simulate_rsf
 from identify.model.symbolic import Model
 from identify.simulation.hybrid import RunConditions, SimulationOptions, SimulationResult, simulate, simulate_run
 from identify.traces.analyze import AnalyzeResult, analyze
 from identify.traces.events import RunEvents, extract_events
 from identify.traces.io import Trace, TraceFormatError, TraceSet, load_traces
+from identify.traces.lab_import import detect_velocity_steps, import_run
+from identify.traces.look import LookFormatError, read_look, read_table
+from identify.traces.look_recipe import apply_recipe
 from identify.traces.reduced import reduced_fit
 
 __all__ = [
@@ -53,6 +59,18 @@ __all__ = [
     "FitOptions",
     "fit",
     "FitResult",
+    "TransientRun",
+    "TransientFitResult",
+    "TransientFitError",
+    "fit_transient",
+    "VelocityDrive",
+    "simulate_rsf",
+    "read_look",
+    "read_table",
+    "LookFormatError",
+    "apply_recipe",
+    "import_run",
+    "detect_velocity_steps",
     "DiagnosisOptions",
     "DiagnosisResult",
     "diagnose",

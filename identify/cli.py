@@ -27,6 +27,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from identify import interrupts
+from identify.cli_lab import add_import
 from identify.jsonio import write_json
 from identify.progress import cli_reporter
 
@@ -222,7 +223,9 @@ def _cmd_analyze(args) -> int:
 # ----------------------------------------------------------------------------- fit
 def _add_fit_arguments(p, json_required: bool):
     p.add_argument("--coating", default=None, help="FOTAS or OTS (default: the runs' majority)")
-    p.add_argument("--law", default="exponential", help="aging law: exponential, logarithmic, logistic")
+    p.add_argument("--law", default=None,
+                   help="aging law: exponential (default), logarithmic, logistic; for continuously driven "
+                        "runs (imported lab data) the rate-and-state law: aging (default) or slip")
     p.add_argument("--free", default=None, metavar="NAMES",
                    help="comma-separated free parameters (default mu_max,mu_min,tau,A)")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
@@ -258,6 +261,12 @@ def _add_fit(sub):
                        description="Joint multiple-shooting fit of the hybrid model over all runs.")
     p.add_argument("data", nargs="+", metavar="DATA", help="trace files (.csv) or folders of runs")
     _add_fit_arguments(p, json_required=True)
+    g = p.add_argument_group("continuously driven runs (imported lab data: a rate-and-state transient fit)")
+    g.add_argument("--window", metavar="START:END", help="fit only the samples in this time window, s")
+    g.add_argument("--trend", action="store_true",
+                   help="also fit c, a linear trend of friction with load-point displacement")
+    g.add_argument("--stiffness-per-um", type=float, default=None, metavar="K",
+                   help="the loading stiffness in friction per µm, in place of the run's k/Nb")
     p.set_defaults(func=_cmd_fit)
 
 
@@ -278,7 +287,7 @@ def _fit_options(args):
 
     free = tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else DEFAULT_FREE
     stick = _stick_mode(args)  # (first: a speed given there joins --fix)
-    return FitOptions(law=args.law, free=free, fixed=_parse_params(args.fix, "--fix"),
+    return FitOptions(law=args.law or "exponential", free=free, fixed=_parse_params(args.fix, "--fix"),
                       bounds=_parse_bounds(args.bound), start=_parse_params(args.start, "--start"),
                       free_offset=args.free_offset, multistart=args.multistart, seed=args.seed,
                       solver=args.solver, trigger=args.trigger, stick_speed=stick,
@@ -302,7 +311,12 @@ def _stick_mode(args) -> str:
 
 
 def _run_fit(args, data, true_values=None) -> int:
+    from identify.cli_lab import continuous_runs, run_transient_fit
     from identify.fitting.driver import fit
+
+    lab = continuous_runs(data)
+    if lab is not None:
+        return run_transient_fit(args, lab)
 
     opts = _fit_options(args)
     profiles = [n.strip() for n in (args.profile or "").split(",") if n.strip()]
@@ -478,7 +492,7 @@ def _cmd_bench(args) -> int:
 
 
 # ----------------------------------------------------------------------------- main
-_COMMANDS = [_add_demo, _add_simulate, _add_regimes, _add_analyze, _add_fit, _add_diagnose, _add_bench]
+_COMMANDS = [_add_demo, _add_simulate, _add_regimes, _add_analyze, _add_fit, _add_diagnose, _add_bench, add_import]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -518,6 +532,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted: nothing saved", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # the reader of our output went away (``| head``): not a fault, nothing to say
+        # to it; stdout is pointed at devnull so the interpreter's final flush is quiet
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except Exception as err:  # noqa: BLE001 - the last line of defence: no traceback on the terminal
         return _internal_error(err)
 

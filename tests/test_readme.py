@@ -41,7 +41,7 @@ def test_first_lines_are_the_two_commands():
 
 
 def test_readme_script_runs(small_data, tmp_path, monkeypatch):
-    (script,) = _blocks("python")
+    script = _blocks("python")[0]
     script = script.replace('"data/FOTAS"', repr(str(small_data)))
     monkeypatch.chdir(tmp_path)
     ns: dict = {}
@@ -55,7 +55,7 @@ def test_readme_script_runs(small_data, tmp_path, monkeypatch):
 
 
 def test_readme_commands_run(small_data, tmp_path, monkeypatch):
-    (block,) = _blocks("bash")
+    block = _blocks("bash")[0]
     monkeypatch.chdir(tmp_path)
     commands = [c for c in block.replace("\\\n", " ").splitlines() if c.strip()]
     assert len(commands) >= 6
@@ -74,3 +74,23 @@ def test_readme_commands_run(small_data, tmp_path, monkeypatch):
     assert (tmp_path / "springs.json").exists() and (tmp_path / "regimes.png").exists()
     assert (tmp_path / "plan.json").exists() and (tmp_path / "ranges.json").exists()
     assert (tmp_path / "diagnosis.json").exists() and (tmp_path / "diagnosis" / "misfit_by_feature.pdf").exists()
+
+
+REPO = README.parent
+
+
+def test_the_lab_data_script_and_commands_run(tmp_path, monkeypatch):
+    """The laboratory section's commands (import, then fit) and its script, as written,
+    from a folder where data/real is the repository's."""
+    assert len(_blocks("python")) == 2 and len(_blocks("bash")) == 2
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "data").symlink_to(REPO / "data")
+    block = _blocks("bash")[1]
+    for cmd in [c for c in block.replace("\\\n", " ").splitlines() if c.strip()]:
+        argv = shlex.split(cmd)
+        assert argv[:3] == ["python", "-m", "identify"], cmd
+        assert identify_main(argv[3:]) == 0, cmd
+    assert (tmp_path / "p655_fit.json").exists() and any((tmp_path / "p655_figures").glob("*.png"))
+    ns: dict = {}
+    exec(compile(_blocks("python")[1], "README.md", "exec"), ns)
+    assert ns["step"].success and abs(ns["step"]["a"].value - 0.00602) < 1e-4

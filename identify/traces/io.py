@@ -141,10 +141,12 @@ class Trace:
         return len(self.time_s)
 
     def __repr__(self) -> str:
+        drive = (f"fp={self.step_frequency:g} Hz" if self.drive is None else "load point at "
+                 + " -> ".join(f"{v:g}" for v in self.drive.velocities_um_per_s) + " µm/s")
         return (
             f"Trace({self.name!r}, {len(self)} frames, {self.time_s[0]:g}..{self.time_s[-1]:g} s, "
             f"k={self.spring_constant:g} N/m, Nb={self.normal_load * 1e6:.3g} µN, "
-            f"fp={self.step_frequency:g} Hz"
+            f"{drive}"
             + (", with puller" if self.puller is not None else "")
             + ")"
         )
@@ -165,8 +167,23 @@ class Trace:
 
     @property
     def step_frequency(self) -> float:
-        """fp, Hz."""
+        """fp, Hz (a stepper's run; a continuously driven run has none: see :attr:`drive`)."""
+        if "step_frequency_Hz" not in self.metadata:
+            raise ValueError(f"run {self.name!r} has a continuous drive, not a stepper: it has no step frequency; "
+                             "fit it with the rate-and-state laws (identify.fit_transient, or "
+                             "'fit --law aging|slip' on the command line)")
         return float(self.metadata["step_frequency_Hz"])
+
+    @property
+    def drive(self):
+        """The load point's motion of a continuously driven run
+        (:class:`identify.model.rsf.VelocityDrive`), None for a stepper's run."""
+        from identify.model.rsf import VelocityDrive
+
+        d = self.metadata.get("drive")
+        if d is None:
+            return None
+        return VelocityDrive(tuple(map(float, d["times_s"])), tuple(map(float, d["velocities_um_per_s"])))
 
     @property
     def step_size(self) -> float:

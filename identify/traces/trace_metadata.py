@@ -31,12 +31,13 @@ _KEY_ORDER = (
     "normal_load_uN",
     "block_voltage_V",
     "step_frequency_Hz",
+    "drive",
     "step_size_nm",
     "frame_rate_Hz",
     "block_mass_kg",
     "notes",
 )
-_POSITIVE_REQUIRED = ("spring_constant_N_per_m", "step_frequency_Hz")
+_POSITIVE_REQUIRED = ("spring_constant_N_per_m",)
 _POSITIVE_OPTIONAL = ("step_size_nm", "frame_rate_Hz", "block_mass_kg")
 _TEXT_OPTIONAL = ("coating", "device", "notes")
 
@@ -67,7 +68,8 @@ def check_metadata(meta: Mapping[str, Any], path: str | Path, text: str | None =
     for key in _POSITIVE_REQUIRED:
         if key not in meta:
             fail(None, f"missing required key {key!r}")
-    for key in _POSITIVE_REQUIRED + _POSITIVE_OPTIONAL:
+    _check_drive(meta, fail)
+    for key in _POSITIVE_REQUIRED + ("step_frequency_Hz",) + _POSITIVE_OPTIONAL:
         if key in meta:
             v = meta[key]
             if not _is_number(v) or not math.isfinite(v) or v <= 0:
@@ -100,6 +102,28 @@ def check_metadata(meta: Mapping[str, Any], path: str | Path, text: str | None =
         for key in PLATFORM_RANGES:
             if key in meta and (problem := platform_problem(key, float(meta[key]))):
                 fail(key, problem)
+
+
+def _check_drive(meta: Mapping[str, Any], fail) -> None:
+    """The puller: a stepper (``step_frequency_Hz``, the MEMS platform) or a continuous
+    ``drive`` (a lab's load point), exactly one of them."""
+    has_steps, drive = "step_frequency_Hz" in meta, meta.get("drive")
+    if has_steps and drive is not None:
+        fail("drive", "give step_frequency_Hz (a stepper) or drive (a continuous load point), not both")
+    if not has_steps and drive is None:
+        fail(None, "missing required key 'step_frequency_Hz' (or 'drive', for a load point that moves continuously)")
+    if drive is None:
+        return
+    rule = ('drive must be {"kind": "velocity_steps", "times_s": [...], "velocities_um_per_s": [...]}: '
+            "as many times as velocities (at least one), times increasing, velocities finite and >= 0")
+    if not isinstance(drive, Mapping) or drive.get("kind") != "velocity_steps":
+        fail("drive", rule)
+    times, vels = drive.get("times_s"), drive.get("velocities_um_per_s")
+    ok = (isinstance(times, list) and isinstance(vels, list) and len(times) == len(vels) >= 1
+          and all(_is_number(x) and math.isfinite(x) for x in times + vels)
+          and all(b > a for a, b in zip(times, times[1:])) and all(v >= 0 for v in vels))
+    if not ok:
+        fail("drive", f"{rule}; found {dict(drive)!r}")
 
 
 def ordered_metadata(meta: Mapping[str, Any]) -> dict:
