@@ -8,6 +8,7 @@ that produces it is in :mod:`identify.simulation.hybrid`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -15,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from identify.jsonio import SavedResult
 from identify.messages import summarise
 from identify.model.params import ParameterError
 from identify.model.symbolic import Model
@@ -63,11 +65,16 @@ class EventTable:
 
     @classmethod
     def from_rows(cls, rows: list[dict]) -> EventTable:
-        data = {}
-        for name, _ in _EVENT_COLUMNS:
-            dtype = int if name in ("step_index", "steps_crossed", "reversals") else float
-            data[name] = np.array([r[name] for r in rows], dtype=dtype)
-        return cls(data)
+        return cls({name: np.array([r[name] for r in rows], dtype=_dtype(name)) for name, _ in _EVENT_COLUMNS})
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, list]) -> EventTable:
+        """The table :meth:`to_dict` gives (null read back as NaN)."""
+        return cls({name: np.array(d.get(name, []), dtype=_dtype(name)) for name, _ in _EVENT_COLUMNS})
+
+
+def _dtype(column: str) -> type:
+    return int if column in ("step_index", "steps_crossed", "reversals") else float
 
 
 @dataclass
@@ -81,8 +88,13 @@ class MovingPhase:
 
 
 @dataclass
-class SimulationResult:
+class SimulationResult(SavedResult):
     """One simulated run: events, regime, trajectories, and a camera sampler.
+
+    ``to_dict()`` holds the CLI's summary and all it takes to rebuild the run (law,
+    parameters, conditions, options, events, stops and recorded phases), so a result
+    read back by :meth:`from_dict` or :meth:`load` answers, samples, reports and plots
+    as the one written.
 
     Attributes
     ----------
@@ -306,7 +318,7 @@ class SimulationResult:
         lines = [
             f"Simulation ({self.model.law.name} law, {self.options.integrator})",
             f"  k = {c.spring_constant:g} N/m, Nb = {c.normal_load * 1e6:g} µN, fp = {c.step_frequency:g} Hz, "
-            f"travel = {s['travel_um']:.2f} µm ({c.n_steps} steps)",
+            f"travel = {s['travel_um']:.2f} µm ({c.n_steps} steps over {c.end_time * 1e3:.4g} ms)",
             f"  regime: {self.regime}; {s['n_slips']} slips; moving {100 * s['moving_fraction']:.1f} % of the time",
         ]
         if s["n_slips"]:
@@ -323,9 +335,65 @@ class SimulationResult:
         return "\n".join(lines)
 
     def to_json(self) -> dict:
+        """:meth:`summary` with what :meth:`from_dict` rebuilds the run from: the events,
+        conditions, options, coating, stops and recorded moving phases."""
         d = self.summary()
         d["events"] = self.events.to_dict()
+        d["coating"] = self.coating
+        d["conditions"] = dataclasses.asdict(self.conditions)
+        d["options"] = dataclasses.asdict(self.options)
+        d["stops"] = np.asarray(self.stops, float).tolist()
+        d["phases"] = [{k: np.asarray(getattr(ph, k), float).tolist() for k in ("t", "x", "v", "state")}
+                       for ph in self.phases]
         return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> SimulationResult:
+        """The run :meth:`to_dict` describes (a null number is read back as NaN). The model
+        is rebuilt from its law's name (:class:`identify.model.symbolic.Model`)."""
+
+        def arr(x):
+            return np.array(x, dtype=float)
+
+        return cls(
+            model=Model(d["law"]),
+            parameters={n: math.nan if v is None else float(v) for n, v in d["parameters"].items()},
+            conditions=RunConditions(**d["conditions"]),
+            events=EventTable.from_dict(d["events"]),
+            regime=d["regime"],
+            phases=[MovingPhase(arr(p["t"]), arr(p["x"]), arr(p["v"]), arr(p["state"])) for p in d.get("phases", [])],
+            stops=arr(d["stops"]).reshape(-1, 4),
+            wall_time_s=float(d["wall_time_s"]),
+            integrator_calls=int(d["integrator_calls"]),
+            options=SimulationOptions(**d["options"]),
+            completed=bool(d.get("completed", True)),
+            warnings=list(d.get("warnings", [])),
+            coating=d.get("coating"),
+        )
+
+    def plot(self, ax=None, t_window: tuple[float, float] | None = None, n_slips: int = 4):
+        """The run's figure, the paper's Fig. 13 (:func:`identify.plots.base.plot_simulation`):
+        positions, velocity, elongation, contact state and forces over a few slips.
+
+        ``ax`` None (a new figure) or a sequence of 5 Axes: the five panels, and those
+        axes are returned. One Axes: the spring elongation alone (panel (c)), returned.
+        """
+        from matplotlib.axes import Axes
+
+        from identify.plots.base import _simulation_times, _simulation_window, plot_simulation
+
+        if not isinstance(ax, Axes):
+            return plot_simulation(self, axes=ax, t_window=t_window, n_slips=n_slips)
+        t0, t1 = _simulation_window(self, n_slips) if t_window is None else t_window
+        t = _simulation_times(self, t0, t1)
+        ax.plot(t * 1e3, self.elongation(t) * 1e6, color="C2")
+        ax.set_xlabel("time (ms)")
+        ax.set_ylabel("spring elongation (µm)")
+        c = self.conditions
+        ax.set_title(f"{self.coating + ', ' if self.coating else ''}k = {c.spring_constant:g} N/m, "
+                     f"$N_b$ = {c.normal_load * 1e6:g} µN, $f_p$ = {c.step_frequency:g} Hz "
+                     f"(regime: {self.regime})", fontsize=10)
+        return ax
 
 
 def classify(events: EventTable, step: float, moving_fraction: float) -> str:

@@ -10,29 +10,89 @@ each aging law (:func:`identify.traces.reduced.reduced_fit`).
 from __future__ import annotations
 
 import logging
+import math
 import os
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from identify.jsonio import jsonable
+from identify.jsonio import SavedResult, jsonable
 from identify.traces.events import RunEvents, extract_events
 from identify.traces.io import Trace, load_traces
-from identify.traces.reduced import ReducedFit, reduced_fit
+from identify.traces.reduced import ReducedFit, ReducedRun, reduced_fit
 
-__all__ = ["AnalyzeResult", "RunAnalysis", "analyze"]
+__all__ = ["AnalyzeResult", "RunAnalysis", "SavedEvents", "SavedTrace", "analyze"]
 
 log = logging.getLogger(__name__)
+
+
+# what a run's JSON says of its trace (RunAnalysis.to_json), written back as read
+_TRACE_KEYS = ("name", "path", "coating", "spring_constant_N_per_m", "normal_load_uN", "step_frequency_Hz", "n_frames")
+
+
+class _ReadBack:
+    """Part of a run read back from JSON: what the report and Fig. 10 need. Anything
+    else (frames, plateaus, slips) was not saved, and asking for it says so."""
+
+    def __getattr__(self, name):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        run = self.__dict__.get("record", {}).get("name") or getattr(self.__dict__.get("trace"), "name", "?")
+        raise AttributeError(
+            f"{type(self).__name__}.{name}: run {run!r} was read from JSON, which keeps its summary and "
+            "reduced analysis, not its frames or events: analyze() its traces again for this"
+        )
+
+
+@dataclass
+class SavedTrace(_ReadBack):
+    """A run's trace as :meth:`AnalyzeResult.load` reads it back: its name, path and
+    conditions, not its frames."""
+
+    record: dict
+
+    name = property(lambda self: self.record["name"])
+    coating = property(lambda self: self.record["coating"])
+    spring_constant = property(lambda self: float(self.record["spring_constant_N_per_m"]))
+    normal_load = property(lambda self: float(self.record["normal_load_uN"]) * 1e-6)
+    step_frequency = property(lambda self: float(self.record["step_frequency_Hz"]))
+
+    @property
+    def path(self) -> Path | None:
+        return None if self.record["path"] is None else Path(self.record["path"])
+
+    def __len__(self) -> int:
+        return int(self.record["n_frames"])
+
+
+@dataclass
+class SavedEvents(_ReadBack):
+    """A run's events as :meth:`AnalyzeResult.load` reads them back: the numbers of the
+    report (regime, slips, noise, step phase, creep ratio) and the reduced analysis."""
+
+    trace: SavedTrace
+    regime: str
+    n_slips: int
+    noise_m: float
+    step_phase: float
+    creep_ratio: float
+    reduced: ReducedRun
+    warnings: list = field(default_factory=list)
+
+
+def _num(x) -> float:
+    return math.nan if x is None else float(x)
 
 
 @dataclass
 class RunAnalysis:
     """One loaded run: its events (None if extraction failed) and whether the law fit
-    used it, with the reason when not."""
+    used it, with the reason when not. A run read back from JSON (:meth:`from_json`)
+    has a :class:`SavedTrace` and :class:`SavedEvents` in place of its trace and events."""
 
-    trace: Trace
-    events: RunEvents | None
+    trace: Trace | SavedTrace
+    events: RunEvents | SavedEvents | None
     used: bool = False
     reason: str = ""
 
@@ -44,17 +104,26 @@ class RunAnalysis:
     def regime(self) -> str:
         return self.events.regime if self.events is not None else "error"
 
+    @property
+    def read_back(self) -> bool:
+        """Whether the run was read from JSON (it has no frames or events then)."""
+        return isinstance(self.trace, SavedTrace)
+
     def to_json(self) -> dict:
         ev = self.events
+        tr = self.trace
+        head = dict(tr.record) if isinstance(tr, SavedTrace) else dict(
+            name=self.name,
+            path=str(tr.path) if tr.path is not None else None,
+            coating=tr.coating,
+            spring_constant_N_per_m=tr.spring_constant,
+            normal_load_uN=tr.normal_load * 1e6,
+            step_frequency_Hz=tr.step_frequency,
+            n_frames=len(tr),
+        )
         return jsonable(
             dict(
-                name=self.name,
-                path=str(self.trace.path) if self.trace.path is not None else None,
-                coating=self.trace.coating,
-                spring_constant_N_per_m=self.trace.spring_constant,
-                normal_load_uN=self.trace.normal_load * 1e6,
-                step_frequency_Hz=self.trace.step_frequency,
-                n_frames=len(self.trace),
+                **head,
                 regime=self.regime,
                 n_slips=ev.n_slips if ev is not None else None,
                 noise_nm=ev.noise_m * 1e9 if ev is not None else None,
@@ -67,10 +136,31 @@ class RunAnalysis:
             )
         )
 
+    @classmethod
+    def from_json(cls, d: dict) -> RunAnalysis:
+        """The run :meth:`to_json` describes: its conditions, summary numbers and reduced
+        analysis (:class:`SavedTrace`, :class:`SavedEvents`), not its frames."""
+        tr = SavedTrace({k: d.get(k) for k in _TRACE_KEYS})
+        ev = None
+        if d.get("reduced") is not None:
+            red = ReducedRun.from_json(d["reduced"])
+            ev = SavedEvents(
+                trace=tr, regime=d["regime"], n_slips=int(d["n_slips"]),
+                noise_m=red.noise_m,  # (σ̂ itself: the JSON's noise_nm is σ̂·1e9)
+                step_phase=_num(d["step_phase"]), creep_ratio=_num(d["creep_ratio"]), reduced=red,
+                warnings=list(d.get("warnings", [])),
+            )
+        return cls(tr, ev, bool(d["used"]), d.get("reason", ""))
+
 
 @dataclass
-class AnalyzeResult:
+class AnalyzeResult(SavedResult):
     """Result of :func:`analyze`.
+
+    ``to_dict()`` is what ``identify analyze --json`` writes; :meth:`from_dict` and
+    :meth:`load` read it back with what the report and :meth:`plot` (Fig. 10) need:
+    the runs' conditions, summary numbers and reduced analyses and the law fits, not
+    the frames or the events themselves (:meth:`save_plots` needs those).
 
     Attributes
     ----------
@@ -134,9 +224,26 @@ class AnalyzeResult:
             )
         )
 
-    def to_dict(self) -> dict:
-        """The analysis as plain JSON values (what ``identify analyze --json`` writes)."""
-        return self.to_json()
+    @classmethod
+    def from_dict(cls, d: dict) -> AnalyzeResult:
+        """The analysis :meth:`to_dict` (or ``identify analyze --json``) describes: its
+        report, JSON and Fig. 10 are those of the analysis written; each run is read back
+        without its frames (:meth:`RunAnalysis.from_json`)."""
+        runs = [RunAnalysis.from_json(r) for r in d["runs"]]
+        source = d.get("source", "events")
+        good = [ra for ra in runs if ra.events is not None]
+        fit = None
+        if good:  # (analyze fits the laws whenever a run has events)
+            listed = dict(source=source, runs=[dict(name=ra.name, used=ra.used) for ra in good],
+                          fits=d.get("law_fits") or {}, best=d.get("best_law"))
+            fit = ReducedFit.from_json(listed, [ra.events.reduced for ra in good])
+        return cls(
+            runs=runs,
+            refused=[(r["file"], r["reason"]) for r in d.get("refused", [])],
+            fit=fit,
+            source=source,
+            warnings=list(d.get("warnings", [])),
+        )
 
     def plot(self, ax=None):
         """The analysis's headline figure, the paper's Fig. 10: static friction against rest
@@ -147,10 +254,16 @@ class AnalyzeResult:
 
     def save_plots(self, directory: str | os.PathLike) -> list[Path]:
         """Write ``events_<run>.png`` per run, ``fig10_static_friction.png`` and
-        ``fig11_aging_rates.png``; returns the paths written."""
+        ``fig11_aging_rates.png``; returns the paths written. An analysis read from JSON
+        has no frames to draw the events of: analyse the traces again."""
         from identify.plots.base import pyplot
         from identify.plots.events import plot_events
 
+        if any(ra.read_back and ra.events is not None for ra in self.runs):
+            raise ValueError(
+                "save_plots: this analysis was read from JSON, which keeps no frames or events to draw "
+                "(plot() draws Fig. 10 from what it keeps): analyze() the traces again for the figures"
+            )
         plt = pyplot()
         out = Path(directory)
         out.mkdir(parents=True, exist_ok=True)

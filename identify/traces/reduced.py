@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -180,6 +180,27 @@ class ReducedRun:
                 mean_rest_time_s=self.mean_rest_time_s,
             )
         )
+
+
+    @classmethod
+    def from_json(cls, d: dict) -> ReducedRun:
+        """The run :meth:`to_json` describes (a null number is read back as NaN)."""
+        kw = {"regime": "", "coating": None, **{_RUN_KEYS.get(k, k): v for k, v in d.items()}}
+        out = {}
+        for f in fields(cls):
+            v = kw.get(f.name)
+            if f.name in ("name", "coating", "regime"):
+                out[f.name] = v
+            elif f.name in ("n_slips", "frames_used"):
+                out[f.name] = int(v)
+            else:
+                out[f.name] = _f(v)
+        return cls(**out)
+
+
+# JSON key -> ReducedRun field, where they differ
+_RUN_KEYS = dict(spring_constant_N_per_m="spring_constant", normal_load_N="normal_load",
+                 step_frequency_Hz="step_frequency", step_size_m="step_size")
 
 
 def reduced_run(trace: Trace, events) -> ReducedRun:
@@ -359,6 +380,20 @@ class ReducedFit:
             )
         )
 
+    @classmethod
+    def from_json(cls, d: dict, runs: Sequence[ReducedRun]) -> ReducedFit:
+        """The fit :meth:`to_json` describes, over ``runs`` (the runs it lists, in its order:
+        the JSON names them, :meth:`ReducedRun.from_json` reads them). The data points
+        are the used runs' points, as :func:`reduced_fit` takes them."""
+        runs = list(runs)
+        listed = d.get("runs", [])
+        if [r["name"] for r in listed] != [r.name for r in runs]:
+            raise ValueError("ReducedFit.from_json: the runs given are not the runs the fit lists")
+        used = [bool(r["used"]) for r in listed]
+        t, mu = _sorted_points([r.point(d["source"]) for r, u in zip(runs, used) if u])
+        fits = {name: _law_curve_from_json(f) for name, f in (d.get("fits") or {}).items()}
+        return cls(runs=runs, used=used, t_rest_s=t, mu_s=mu, fits=fits, best=d.get("best"), source=d["source"])
+
     def covariance(self, law: str) -> tuple[list, np.ndarray]:
         """Covariance of a law fit's parameters (times in s) as its standard errors come
         from it: s²·(JᵀJ)⁻¹ at the data points, s² = RSS/(n − free), over the parameters
@@ -434,12 +469,35 @@ def reduced_fit(
         used.append(bool(ok))
         if ok:
             pts.append((t, m))
-    arr = np.array(pts, float).reshape(-1, 2)
-    order = np.argsort(arr[:, 0], kind="stable")
-    t, mu = arr[order, 0], arr[order, 1]
+    t, mu = _sorted_points(pts)
     fits = {get_law(name).name: fit_law_curve(name, t, mu) for name in laws}
     ok = {n: f for n, f in fits.items() if f.converged and math.isfinite(f.aic)}
     best = min(ok, key=lambda n: ok[n].aic) if ok else None
     return ReducedFit(
         runs=runs, used=used, t_rest_s=t, mu_s=mu, fits=fits, best=best, source=source
+    )
+
+
+def _sorted_points(pts: list) -> tuple[np.ndarray, np.ndarray]:
+    """(t_rest, μs) arrays of the points ``pts``, by increasing rest time."""
+    arr = np.array(pts, float).reshape(-1, 2)
+    order = np.argsort(arr[:, 0], kind="stable")
+    return arr[order, 0], arr[order, 1]
+
+
+def _law_curve_from_json(d: dict) -> LawCurveFit:
+    """The law fit ``LawCurveFit.to_json`` describes (null numbers read back as NaN)."""
+    return LawCurveFit(
+        law=d["law"],
+        parameters={p: _f(v) for p, v in d["parameters"].items()},
+        stderr={p: _f(v) for p, v in d["stderr"].items()},
+        rss=_f(d["rss"]),
+        n=int(d["n"]),
+        k=int(d["k"]),
+        aic=_f(d["aic"]),
+        bic=_f(d["bic"]),
+        r2=_f(d["r2"]),
+        converged=bool(d["converged"]),
+        message=d.get("message", ""),
+        at_bounds=list(d.get("at_bounds", [])),
     )
