@@ -25,9 +25,10 @@ from identify.model.symbolic import Model
 from identify.simulation.hybrid import RunConditions, SimulationOptions, SimulationResult, simulate, simulate_run
 from identify.traces.analyze import AnalyzeResult, analyze
 from identify.traces.events import RunEvents, extract_events
+from identify.traces.force_cycles import CycleAnalysis, analyze_cycles, cycles_of_trace
 from identify.traces.io import Trace, TraceFormatError, TraceSet, load_traces
 from identify.traces.lab_import import detect_velocity_steps, import_run
-from identify.traces.look import LookFormatError, read_look, read_table
+from identify.traces.look import LookFormatError, read_look, read_mat, read_table
 from identify.traces.look_recipe import apply_recipe
 from identify.traces.reduced import reduced_fit
 
@@ -66,7 +67,11 @@ __all__ = [
     "VelocityDrive",
     "simulate_rsf",
     "read_look",
+    "read_mat",
     "read_table",
+    "CycleAnalysis",
+    "analyze_cycles",
+    "cycles_of_trace",
     "LookFormatError",
     "apply_recipe",
     "import_run",

@@ -204,7 +204,12 @@ def _add_analyze(sub):
 
 
 def _cmd_analyze(args) -> int:
+    from identify.cli_lab import continuous_runs, run_cycle_analysis
     from identify.traces.analyze import analyze
+
+    lab = continuous_runs(args.data)
+    if lab is not None:
+        return run_cycle_analysis(args, lab)
 
     res = analyze(args.data, source=args.source, recursive=args.recursive)
     print(res.report())

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from identify.jsonio import write_json
 
-__all__ = ["add_import", "continuous_runs", "run_transient_fit"]
+__all__ = ["add_import", "continuous_runs", "run_cycle_analysis", "run_transient_fit"]
 
 
 class LabCLIError(ValueError):
@@ -41,13 +41,14 @@ def add_import(sub) -> None:
         "velocity steps and write a format-v1 trace (friction as elongation through the stated stiffness). "
         "Prints every assumption made.")
     p.add_argument("source", metavar="FILE", help="binary look file, or a text table with a header line")
-    p.add_argument("--format", default="auto", choices=("auto", "look", "table"),
-                   help="'auto': a text table if the file reads as text, else a look file")
+    p.add_argument("--format", default="auto", choices=("auto", "look", "table", "mat"),
+                   help="'auto': MATLAB for .mat, a text table if the file reads as text, else a look file")
     p.add_argument("--recipe", metavar="FILE", help="the lab's xlook reduction recipe to run first")
     p.add_argument("--time", default="Time", metavar="COLUMN", help="time column, s (name or number from 1)")
     p.add_argument("--friction", default="mu", metavar="COLUMN", help="friction column (name or number from 1)")
-    p.add_argument("--load-point", default="LP_disp", metavar="COLUMN",
-                   help="load-point displacement column, µm (name or number from 1)")
+    p.add_argument("--load-point", default=None, metavar="COLUMN",
+                   help="load-point displacement column, µm (name or number from 1); without one the drive is "
+                        "the one velocity --velocities gives")
     p.add_argument("--stiffness-per-um", type=float, required=True, metavar="K",
                    help="the loading system's stiffness in friction per µm of load-point displacement")
     p.add_argument("--normal-load-uN", type=float, default=None,
@@ -63,8 +64,10 @@ def add_import(sub) -> None:
 
 
 def _read(path: Path, fmt: str):
-    from identify.traces.look import read_look, read_table
+    from identify.traces.look import read_look, read_mat, read_table
 
+    if fmt == "mat" or (fmt == "auto" and path.suffix.lower() == ".mat"):
+        return read_mat(path)
     if fmt == "auto":
         head = path.read_bytes()[:4096]
         fmt = "table" if b"\0" not in head else "look"
@@ -93,7 +96,8 @@ def cmd_import(args) -> int:
         except ValueError:
             raise LabCLIError(f"--velocities {args.velocities!r}: expected numbers separated by commas") from None
     imp = import_run(look, friction=_column(args.friction), time=_column(args.time),
-                     load_point=_column(args.load_point), stiffness_per_um=args.stiffness_per_um,
+                     load_point=_column(args.load_point) if args.load_point else None,
+                     stiffness_per_um=args.stiffness_per_um,
                      normal_load_uN=args.normal_load_uN, window_s=_range(args.window, "--window"),
                      velocities_um_per_s=velocities, name=args.name or Path(args.out).name,
                      notes=f"imported from {source.name}" + (f" with the recipe {Path(args.recipe).name}"
@@ -184,6 +188,11 @@ def run_transient_fit(args, traces) -> int:
     from identify.fitting.transient import TransientRun, fit_transient
 
     req = _transient_request(args)
+    constant = [t.name for t in traces if len(t.drive.velocities_um_per_s) == 1]
+    if constant:
+        raise LabCLIError(f"{', '.join(constant)}: driven at one constant velocity, no transient to fit; "
+                          "'analyze' reads such a run's regime and slip cycles (fitting stick-slip under a "
+                          "continuous drive is not built yet)")
     results = []
     for trace in traces:
         run = TransientRun.from_trace(trace, stiffness_per_um=req.stiffness_per_um)
@@ -206,3 +215,22 @@ def run_transient_fit(args, traces) -> int:
         print(f"fit: not converged for {', '.join(bad)}; exit status 3", file=sys.stderr)
         return 3
     return 0
+
+
+def run_cycle_analysis(args, traces) -> int:
+    """``analyze`` on continuously driven runs: each run's regime (stick-slip, inertial,
+    steady) and slip cycles, as the data show them."""
+    from identify.traces.force_cycles import cycles_of_trace
+
+    results = []
+    for trace in traces:
+        try:
+            res = cycles_of_trace(trace)
+        except ValueError as err:  # one run that cannot be read this way never sinks the others
+            print(f"refused: {err}", file=sys.stderr)
+            continue
+        results.append(res)
+        print(res.report())
+    if args.json and results:
+        print(f"wrote {write_json(args.json, {'cycles': [r.to_dict() for r in results]})}")
+    return 0 if results else 2

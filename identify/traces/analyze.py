@@ -118,7 +118,7 @@ class RunAnalysis:
             coating=tr.coating,
             spring_constant_N_per_m=tr.spring_constant,
             normal_load_uN=tr.normal_load * 1e6,
-            step_frequency_Hz=tr.step_frequency,
+            step_frequency_Hz=tr.metadata.get("step_frequency_Hz"),  # (a lab's continuous drive has none)
             n_frames=len(tr),
         )
         return jsonable(

@@ -169,9 +169,10 @@ class Trace:
     def step_frequency(self) -> float:
         """fp, Hz (a stepper's run; a continuously driven run has none: see :attr:`drive`)."""
         if "step_frequency_Hz" not in self.metadata:
-            raise ValueError(f"run {self.name!r} has a continuous drive, not a stepper: it has no step frequency; "
-                             "fit it with the rate-and-state laws (identify.fit_transient, or "
-                             "'fit --law aging|slip' on the command line)")
+            raise ValueError(f"run {self.name!r} has a continuous drive, not a stepper: it has no step frequency. "
+                             "Velocity steps are fitted with the rate-and-state laws (identify.fit_transient; "
+                             "'fit --law aging|slip'); a constant drive's cycles are read by "
+                             "identify.cycles_of_trace ('analyze')")
         return float(self.metadata["step_frequency_Hz"])
 
     @property

@@ -134,11 +134,12 @@ class ImportedRun:
     assumptions: list
 
 
-def import_run(look: LookFile, *, friction: str | int, time: str | int, load_point: str | int,
+def import_run(look: LookFile, *, friction: str | int, time: str | int, load_point: str | int | None,
                stiffness_per_um: float, normal_load_uN: float | None = None,
                window_s: tuple[float, float] | None = None, velocities_um_per_s: Sequence[float] | None = None,
                name: str | None = None, notes: str = "") -> ImportedRun:
-    """A trace of one stretch of a lab recording (columns named or numbered from 0).
+    """A trace of one stretch of a lab recording (columns named or numbered from 0; no
+    ``load_point`` column: the drive is the one velocity given).
 
     ``stiffness_per_um``: the loading system's stiffness in friction per µm of load-point
     displacement. ``normal_load_uN``: the normal load as stated (default 1 N: only k/Nb
@@ -151,18 +152,26 @@ def import_run(look: LookFile, *, friction: str | int, time: str | int, load_poi
     if normal_load_uN is None:
         normal_load_uN = 1e6
         said.append("normal load not given: recorded as 1 N (only k/Nb enters a fit)")
-    t, mu, lp = (np.asarray(look[c].values, float) for c in (time, friction, load_point))
+    if load_point is None and (velocities_um_per_s is None or len(velocities_um_per_s) != 1):
+        raise ValueError("without a load-point column the drive is one constant velocity: give exactly one "
+                         "velocity (velocities_um_per_s=[V], --velocities V)")
+    t, mu = (np.asarray(look[c].values, float) for c in (time, friction))
+    lp = np.asarray(look[load_point].values, float) if load_point is not None else np.zeros_like(t)
     keep = np.isfinite(t) & np.isfinite(mu) & np.isfinite(lp)
     if window_s is not None:
         keep &= (t >= window_s[0]) & (t <= window_s[1])
     if keep.sum() < 10:
         raise ValueError(f"{look.path}: {keep.sum()} usable samples in the window {window_s}")
     t, mu, lp = t[keep], mu[keep], lp[keep]
-    drive, ses = detect_velocity_steps(t, lp)
-    measured = ", ".join(f"{v:.4g} ± {s:.2g}" for v, s in zip(drive.velocities_um_per_s, ses))
-    said.append(f"load point: {len(drive.times_s)} stretch(es) found in {look[load_point].name!r}, at "
-                + ", ".join(f"{x:.6g} s" for x in drive.times_s) + f"; measured velocities {measured} µm/s")
-    if velocities_um_per_s is not None:
+    if load_point is None:
+        drive = VelocityDrive((float(t[0]),), (float(velocities_um_per_s[0]),))
+        said.append(f"load point not recorded: driven at {velocities_um_per_s[0]:g} µm/s throughout, as given")
+    else:
+        drive, ses = detect_velocity_steps(t, lp)
+        measured = ", ".join(f"{v:.4g} ± {s:.2g}" for v, s in zip(drive.velocities_um_per_s, ses))
+        said.append(f"load point: {len(drive.times_s)} stretch(es) found in {look[load_point].name!r}, at "
+                    + ", ".join(f"{x:.6g} s" for x in drive.times_s) + f"; measured velocities {measured} µm/s")
+    if velocities_um_per_s is not None and load_point is not None:
         if len(velocities_um_per_s) != len(drive.velocities_um_per_s):
             raise ValueError(f"{len(velocities_um_per_s)} velocities given for the {len(drive.times_s)} stretch(es) "
                              f"found (measured {measured} µm/s)")
@@ -176,8 +185,9 @@ def import_run(look: LookFile, *, friction: str | int, time: str | int, load_poi
             "normal_load_uN": float(normal_load_uN), "drive": drive.to_dict(), "outside_platform_ranges": True,
             "notes": notes or f"imported from {Path(look.path).name if look.path else look.title}",
             "imported": {"source": Path(look.path).name if look.path else look.title, "friction": look[friction].name,
-                         "time": look[time].name, "load_point": look[load_point].name,
+                         "time": look[time].name,
+                         "load_point": look[load_point].name if load_point is not None else None,
                          "stiffness_per_um": float(stiffness_per_um), "assumptions": said}}
     trace = Trace(name=name or (look.title or "run"), time_s=t, elongation=mu / stiffness_per_um * 1e-6,
-                  puller=lp * 1e-6, metadata=meta)
+                  puller=lp * 1e-6 if load_point is not None else None, metadata=meta)
     return ImportedRun(trace, said)

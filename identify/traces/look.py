@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Channel", "LookFile", "LookFormatError", "MissingColumnError", "read_look", "read_table"]
+__all__ = ["Channel", "LookFile", "LookFormatError", "MissingColumnError", "read_look", "read_mat", "read_table"]
 
 _TITLE = 20
 _COUNTS = struct.Struct(">ii")
@@ -164,6 +164,31 @@ def read_table(path: str | os.PathLike, names: list[str] | None = None) -> LookF
         m = re.fullmatch(r"(.*?)\s*\[(.*)\]", n)
         name, unit = (m.group(1), m.group(2)) if m else (n, "")
         out.channels.append(Channel(name, unit, data[:, i].copy()))
+    return out
+
+
+def read_mat(path: str | os.PathLike) -> LookFile:
+    """Read a MATLAB file's vectors as columns (every numeric variable of one dimension
+    beyond the singleton ones, all of one length); refuse a file whose vectors differ in
+    length, naming them."""
+    from scipy.io import loadmat
+    from scipy.io.matlab import MatReadError
+
+    path = Path(path)
+    try:
+        raw = loadmat(path)
+    except (MatReadError, ValueError, TypeError, OSError) as err:
+        raise LookFormatError(f"{path}: not a MATLAB file scipy can read ({err})") from None
+    cols = {k: np.ravel(v).astype(float) for k, v in raw.items()
+            if not k.startswith("__") and isinstance(v, np.ndarray) and v.dtype.kind in "fiu"
+            and sum(d > 1 for d in v.shape) == 1}
+    if not cols:
+        raise LookFormatError(f"{path}: no numeric vectors")
+    lengths = {k: len(v) for k, v in cols.items()}
+    if len(set(lengths.values())) > 1:
+        raise LookFormatError(f"{path}: vectors of different lengths {lengths}")
+    out = LookFile(title=path.stem, path=str(path))
+    out.channels = [Channel(k, "", v) for k, v in cols.items()]
     return out
 
 

@@ -29,7 +29,7 @@ def _import(tmp_path, capsys, extra=()):
     stem = tmp_path / "p655" / "p655_vs"
     code = main(["import", str(P655 / "p655intact100l"), "--recipe", str(P655 / "p655_r-reduction.txt"),
                  "--stiffness-per-um", "1e-3", "--normal-load-uN", "2.5e11", "--window", WINDOW,
-                 "--velocities", "2.28,22.85", "--out", str(stem), *extra])
+                 "--velocities", "2.28,22.85", "--load-point", "LP_disp", "--out", str(stem), *extra])
     return code, capsys.readouterr(), stem
 
 
@@ -71,7 +71,7 @@ def test_import_refuses_what_it_cannot_do_in_one_line(tmp_path, capsys):
                  "--out", str(tmp_path / "x")]) == 2
     assert "--window '9:1': expected START:END" in capsys.readouterr().err
     assert main(["import", str(P655 / "p655intact100l"), "--stiffness-per-um", "1e-3", "--friction", "mu",
-                 "--out", str(tmp_path / "y")]) == 2
+                 "--load-point", "LP_disp", "--out", str(tmp_path / "y")]) == 2
     assert "no channel named 'mu'" in capsys.readouterr().err  # (no recipe: the raw file has bits only)
     assert main(["fit", str(tmp_path / "p655"), "--json", str(tmp_path / "f.json"), "--law", "exponential"]) == 2
     assert "rate-and-state laws aging or slip" in capsys.readouterr().err
