@@ -86,6 +86,7 @@ class CycleAnalysis(SavedResult):
                    swing=float(d["swing"]), **arr)
 
 
+_STEADY_SWING = 1e-4  # force/N: a swing below this is steady sliding even in noiseless (simulated) data
 _FINE = 21  # samples of the slip detector's slope (10 ms at 2 kHz): short beside a slip cycle
 
 
@@ -123,7 +124,7 @@ def analyze_cycles(time_s: np.ndarray, force_norm: np.ndarray, *, drive_rate: fl
     The regime is read from the share of the time the force rises (a sawtooth rises most
     of the time and falls in brief slips; an oscillation rises half the time): stick-slip
     at 0.65 or more, inertial below 0.6, steady when the force swings less than ten times
-    its noise. The slope that decides it is taken over a window long enough for its
+    its noise (or than 1e-4 of the normal load, for noiseless records). The slope that decides it is taken over a window long enough for its
     standard error to be a tenth of the drive's rate, at most 5 % of the time the drive
     needs to raise the force by its swing, at least 5 samples.
     """
@@ -147,7 +148,7 @@ def analyze_cycles(time_s: np.ndarray, force_norm: np.ndarray, *, drive_rate: fl
     rising = float(np.mean(slope > 0))
     stuck = (1.0 - slope / drive_rate) < stuck_below  # the slider's velocity over the drive's
     rise = float(np.median(slope[stuck])) if stuck.any() else float("nan")
-    if swing < 10 * noise:
+    if swing < max(10 * noise, _STEADY_SWING):
         regime = "steady"
     elif rising >= 0.65:
         regime = "stick-slip"

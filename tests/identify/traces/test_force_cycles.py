@@ -45,6 +45,7 @@ def test_an_oscillation_is_inertial_with_its_period():
     assert c.mean_period == pytest.approx(0.08, rel=0.02) and c.drops.size == 0
     flat = analyze_cycles(t, 0.3 + np.random.default_rng(3).normal(0, 1e-3, t.size), drive_rate=2.0)
     assert flat.regime == "steady"
+    assert analyze_cycles(t, np.full(t.size, 0.3), drive_rate=2.0).regime == "steady"  # (noiseless)
 
 
 def test_the_analysis_reports_and_round_trips(tmp_path, strict_json):
