@@ -122,7 +122,11 @@ GALLERY: dict[str, Section] = {
         (Figure("transient_*.png", "lab_velocity_step.png", "A velocity step fitted with the aging law",
                 "The Penn State p655 gouge (data/real/p655): friction against load-point displacement through "
                 "the step 2.28 → 22.85 µm/s at 100 MPa, the aging law fitted at the lab's stiffness 1e-3/µm; "
-                "data − model below.", draws=("plot_transient_fit",)),)),
+                "data − model below.", draws=("plot_transient_fit",)),
+         Figure("cycles_*.png", "lab_stick_slip_cycles.png", "Stick-slip cycles under a constant drive",
+                "Colas et al.'s paper on paper (data/real/colas2019), 168 N/m at 42 µm/s: each slip's force drop "
+                "against the time until the next slip, beside the line a sawtooth follows.",
+                draws=("plot_cycles",)))),
 }
 
 
@@ -208,6 +212,10 @@ def make_lab(folder: Path) -> None:
                                 window_s=(3847.35, 3857.35), velocities_um_per_s=[2.28, 22.85], name="p655").trace
     res = identify.fit_transient(identify.TransientRun.from_trace(trace), law="aging")
     _save(res.plot()[0].figure, folder / "transient_p655.png")
+    colas = identify.read_mat(HERE.parent / "data" / "real" / "colas2019" / "k168Nm_v42.mat")
+    cyc = identify.analyze_cycles(colas["t"].values, colas["Fnorm"].values, drive_rate=168 * 42e-6 / 0.301,
+                                  name="k168, 42 µm/s")
+    _save(cyc.plot().figure, folder / "cycles_k168_v42.png")
 
 
 MAKERS = {"simulate": make_simulate, "regimes": make_regimes, "analyze": make_analyze, "fit": make_fit,

@@ -77,6 +77,12 @@ class CycleAnalysis(SavedResult):
                     mean_drop=self.mean_drop, mean_period=self.mean_period, slip_times_s=self.slip_times_s,
                     drops=self.drops, periods=self.periods)
 
+    def plot(self, ax=None):
+        """Force drop against the reload time after it (:func:`identify.plots.transient.plot_cycles`)."""
+        from identify.plots.transient import plot_cycles
+
+        return plot_cycles(self, ax=ax)
+
     @classmethod
     def from_dict(cls, d: dict) -> CycleAnalysis:
         arr = {k: np.asarray(d.get(k) or [], float) for k in ("slip_times_s", "drops", "periods")}
@@ -124,9 +130,10 @@ def analyze_cycles(time_s: np.ndarray, force_norm: np.ndarray, *, drive_rate: fl
     The regime is read from the share of the time the force rises (a sawtooth rises most
     of the time and falls in brief slips; an oscillation rises half the time): stick-slip
     at 0.65 or more, inertial below 0.6, steady when the force swings less than ten times
-    its noise (or than 1e-4 of the normal load, for noiseless records). The slope that decides it is taken over a window long enough for its
-    standard error to be a tenth of the drive's rate, at most 5 % of the time the drive
-    needs to raise the force by its swing, at least 5 samples.
+    its noise (or than 1e-4 of the normal load, for noiseless records). The slope that
+    decides it is taken over a window long enough for its standard error to be a tenth of
+    the drive's rate, at most 5 % of the time the drive needs to raise the force by its
+    swing, at least 5 samples.
     """
     t, F = np.asarray(time_s, float), np.asarray(force_norm, float)
     if t.size < 50 or t.shape != F.shape or np.any(np.diff(t) <= 0):

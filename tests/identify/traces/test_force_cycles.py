@@ -55,6 +55,17 @@ def test_the_analysis_reports_and_round_trips(tmp_path, strict_json):
     back = CycleAnalysis.load(c.save(tmp_path / "c.json"))
     strict_json(tmp_path / "c.json")
     assert back.to_dict() == c.to_dict() and back.report() == c.report()
+    import matplotlib
+
+    matplotlib.use("Agg")
+    ax = back.plot()
+    assert ax.get_xlabel() == "time until the next slip (s)" and len(ax.lines) == 2
+    t_osc = np.arange(0, 5, DT)
+    osc = analyze_cycles(t_osc, 0.3 + 0.05 * np.sin(2 * np.pi * t_osc / 0.08), drive_rate=2.0)
+    assert osc.plot().get_xlabel() == "oscillation period (ms)"
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
     with pytest.raises(ValueError, match="drive_rate = 0 must be > 0"):
         analyze_cycles(t, f, drive_rate=0)
     with pytest.raises(ValueError, match="time increasing"):
