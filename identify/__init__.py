@@ -9,6 +9,7 @@ except PackageNotFoundError:  # a source tree that was never installed
 
 from identify.diagnosis.rounds import DiagnosisOptions, DiagnosisResult, diagnose
 from identify.fitting.driver import FitError, FitOptions, fit
+from identify.fitting.parameters import Parameter, Parameters
 from identify.fitting.result import FitResult
 from identify.fitting.transient import TransientFitError, TransientRun, fit_transient
 from identify.fitting.transient_result import TransientFitResult
@@ -60,6 +61,8 @@ __all__ = [
     "FitOptions",
     "fit",
     "FitResult",
+    "Parameter",
+    "Parameters",
     "TransientRun",
     "TransientFitResult",
     "TransientFitError",

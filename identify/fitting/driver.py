@@ -175,7 +175,7 @@ def _interval_solve(prob, best: dict, opts, say):
     return prob, best, f" -> interval re-solve {status}, not kept (the uniform encoding's solution)"
 
 
-def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
+def fit(data, *, coating: str | None = None, options: FitOptions | None = None, params=None,
         true_values: Mapping[str, float] | None = None, progress: Callable[[str], None] | bool | None = None):
     """Identify the friction parameters from recorded runs.
 
@@ -187,6 +187,10 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         FOTAS or OTS: the preset for the parameters that are not free; runs of another
         coating are left out (default: the runs' majority coating).
     options : FitOptions
+    params : identify.Parameters, optional
+        The parameters declared lmfit-style (value, vary, min, max): they give the
+        options' ``free``, ``start``, ``fixed`` and ``bounds``, and the coating when
+        none is given.
     true_values : dict, optional
         Shown beside the estimates in the report (synthetic data).
     progress : callable, False or None
@@ -206,6 +210,10 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None,
         On Ctrl-C (a ``KeyboardInterrupt``): its ``saved`` holds the best point reached
         so far (parameters, χ², the solver's status), or None if no solve had begun.
     """
+    from identify.fitting.parameters import merged_options
+
+    options = merged_options(options, params)
+    coating = coating or getattr(params, "coating", None)
     progress = reporter(progress)
     with interrupts.honoured(), best_so_far.watching() as seen:
         try:
