@@ -220,15 +220,19 @@ class TriggerRefinement:
         moved = gain[np.arange(E), best] > min_gain
         new_steps = self.ev_step.copy()
         new_steps[moved] += np.array(shifts)[best[moved]]
-        # two neighbours moved towards each other can meet: keep the less certain one
+        # two neighbours moved towards each other can meet: the one that gains less goes
+        # back, one clash at a time (a slip in two clashes may already be back when the
+        # second is looked at; and a clash of two slips neither of which moved was there
+        # before, in the detected sequence, and is not this refinement's to undo)
         for _ in range(E):
             clash = np.nonzero((np.diff(new_steps) <= 0) & (self.ev_run[1:] == self.ev_run[:-1]))[0]
-            if not clash.size:
+            clash = [i for i in clash if moved[i] or moved[i + 1]]
+            if not clash:
                 break
-            for i in clash:
-                j = min((p for p in (i, i + 1) if moved[p]), key=lambda p: gain[p, best[p]])
-                moved[j] = False
-                new_steps[j] = self.ev_step[j]
+            i = clash[0]
+            j = min((p for p in (i, i + 1) if moved[p]), key=lambda p: gain[p, best[p]])
+            moved[j] = False
+            new_steps[j] = self.ev_step[j]
         changes = {}
         for ri in np.unique(self.ev_run[moved]):
             sel = self.ev_run == ri

@@ -2105,3 +2105,28 @@ def test_report_says_why_residuals_are_fewer_than_observations(small_fit):
     assert f"observations       = {small_fit.n_observations} (plateau frames" in rep
     assert "residuals (a plateau's frames enter through their mean" in rep
     assert small_fit.nlp_size["residuals"] < small_fit.n_observations
+
+
+def test_moved_triggers_that_meet_go_back_one_clash_at_a_time():
+    """Three slips of one run where the middle one's move clashes with both neighbours'
+    (it used to be put back twice, and the second look found no moved slip: ``min() arg
+    is an empty sequence`` on noiseless data), and a clash already in the detected
+    sequence, which is left as it was."""
+    from types import SimpleNamespace
+
+    from identify.fitting.triggers import TriggerRefinement
+
+    stub = SimpleNamespace(E=4, ev_step=np.array([10, 12, 14, 30]), ev_run=np.array([0, 0, 0, 0]))
+    shifts = (-2, -1, 1, 2)
+    gain = np.array([[0, 0, 0, 5.0],   # slip 0: +2 -> 12
+                     [0, 0, 0, 0.0],   # slip 1: stays
+                     [3.0, 0, 0, 0],   # slip 2: -2 -> 12
+                     [0, 0, 0, 0.0]])
+    changes, n = TriggerRefinement._take_shifts(stub, gain, shifts, 1.0)
+    assert n == 0 and changes == {}  # both moves meet slip 1 at step 12: both go back
+    gain[2] = [0, 0, 0, 4.0]  # slip 2: +2 -> 16, no clash
+    changes, n = TriggerRefinement._take_shifts(stub, gain, shifts, 1.0)
+    assert n == 1 and list(changes[0]) == [10, 12, 16, 30]
+    stub.ev_step = np.array([10, 10, 14, 30])  # two slips at one step, as detected
+    changes, n = TriggerRefinement._take_shifts(stub, gain, shifts, 1.0)
+    assert n == 1 and list(changes[0]) == [10, 10, 16, 30]
