@@ -29,6 +29,7 @@ from identify.diagnosis.magnitude_check import MAGNITUDE_MAX_ITER as MAGNITUDE_M
 from identify.diagnosis.magnitude_check import MAGNITUDE_MOVED_Z as MAGNITUDE_MOVED_Z
 from identify.diagnosis.magnitude_check import MAGNITUDE_WIDER as MAGNITUDE_WIDER
 from identify.diagnosis.magnitude_check import at_magnitude
+from identify.diagnosis.records import CandidateResult
 from identify.diagnosis.refit_readings import confounding, parameter_estimates, regime_of_left_out
 from identify.diagnosis.refit_screen import (
     BASIN_GIVE_UP_AFTER,
@@ -49,7 +50,7 @@ from identify.fitting.convergence import GAVE_UP as GAVE_UP
 from identify.fitting.convergence import GIVE_UP_FEAS
 from identify.fitting.convergence import STALLED as STALLED
 
-__all__ = ["CandidateTask", "run_candidate", "candidate_problem", "regime_of_left_out"]
+__all__ = ["CandidateResult", "CandidateTask", "run_candidate", "candidate_problem", "regime_of_left_out"]
 
 FALLBACK_STARTS = 1
 """How many of the starts a refit passed over (a higher χ² at the start than the one it
@@ -84,7 +85,7 @@ class CandidateTask:
     regime_runs: list = field(default_factory=list)  # runs left out for their regime (regime_check)
 
 
-def run_candidate(task: CandidateTask) -> dict:
+def run_candidate(task: CandidateTask) -> CandidateResult:
     """Refit, then the numbers the diagnosis scores the candidate by."""
     t0 = time.perf_counter()
     free = tuple(n for n in task.free if n not in task.replace_free) + tuple(
@@ -95,13 +96,13 @@ def run_candidate(task: CandidateTask) -> dict:
         best = _refit(task, prob, _scored_starts(prob, _starts(task, prob, free)))
         ev = prob.central_differences().evaluate(best["w"], jac=True)
         out = _refit_record(task, prob, free, best, ev, t0)
-        if (task.magnitude and np.isfinite(out["chi2"])
-                and not could_be_named(task, out["chi2"], prob.n_effective(), prob.n_observations())):
-            _add_magnitude_check(task, prob, out, ev, t0)
+        if (task.magnitude and np.isfinite(out.chi2)
+                and not could_be_named(task, out.chi2, prob.n_effective(), prob.n_observations())):
+            out = out.but(**_magnitude_check(task, prob, out, ev, t0))
         return out
     except Exception as err:  # one failed candidate never sinks the diagnosis
-        return dict(effect=task.effect, ok=False, status=f"failed: {type(err).__name__}: {err}", error=str(err),
-                    wall_s=time.perf_counter() - t0)
+        return CandidateResult(effect=task.effect, ok=False, status=f"failed: {type(err).__name__}: {err}",
+                               error=str(err), wall_s=time.perf_counter() - t0)
 
 
 def _starts(task: CandidateTask, prob, free: tuple) -> list:
@@ -211,7 +212,7 @@ def _solve_passed_over(task: CandidateTask, prob, scored: list, todo: list, best
     return best
 
 
-def _refit_record(task: CandidateTask, prob, free: tuple, best: dict, ev, t0: float) -> dict:
+def _refit_record(task: CandidateTask, prob, free: tuple, best: dict, ev, t0: float) -> CandidateResult:
     """The numbers of the refit's best end (``ev``: its central-difference evaluation) the
     diagnosis scores it by."""
     w = best["w"]
@@ -223,16 +224,14 @@ def _refit_record(task: CandidateTask, prob, free: tuple, best: dict, ev, t0: fl
     heldout = _heldout_gap(task, prob, w, r, ev, chi2) if task.folds else dict(gap_um=float("nan"))
     values = dict(task.values)
     values.update(zip(prob.theta.names, (float(v) for v in prob.theta.from_scaled(w[: prob.n_theta]))))
-    out = dict(
+    return CandidateResult(
         effect=task.effect, ok=bool(np.isfinite(chi2)), status=best["status"], iterations=best["iterations"],
         rounds=best.get("rounds", []),
         chi2=chi2, n_obs=prob.n_observations(), n_eff=prob.n_effective(), free=list(free), law=task.law,
         values=values, estimates=est, confounding=info, r=r, w=w, ev_M=np.array(prob.ev_M),
         gap=fitted, heldout=heldout, wall_s=time.perf_counter() - t0, error=None, nulls=dict(task.nulls),
+        regime=regime_of_left_out(task, values) if task.regime_runs else None,
     )
-    if task.regime_runs:
-        out["regime"] = regime_of_left_out(task, values)
-    return out
 
 
 def _heldout_gap(task: CandidateTask, prob, w, r: np.ndarray, ev, chi2: float) -> dict:
@@ -279,18 +278,20 @@ def _heldout_numbers(task: CandidateTask, prob, w, r: np.ndarray, ho) -> dict:
     return heldout
 
 
-def _add_magnitude_check(task: CandidateTask, prob, out: dict, ev, t0: float) -> None:
-    """The check at the realistic magnitude into ``out`` (its error instead, the refit's
-    numbers standing), with where a profile over the parameter would start."""
+def _magnitude_check(task: CandidateTask, prob, out: CandidateResult, ev, t0: float) -> dict:
+    """The check at the realistic magnitude of the refit ``out`` (its error instead, the
+    refit's numbers standing), with where a profile over the parameter would start: the
+    fields to add to ``out``."""
     try:
-        out["at_magnitude"] = at_magnitude(task, prob, out["w"], out["chi2"], out["estimates"], evaluated=ev)
+        m = at_magnitude(task, prob, out.w, out.chi2, out.estimates, evaluated=ev)
     except Exception as err:  # the refit's numbers stand; only this check is missing
-        out["at_magnitude"] = dict(parameter=task.magnitude[0], value=float(task.magnitude[1]),
-                                   absorbed=None, error=f"{type(err).__name__}: {err}")
-    out["wall_s"] = time.perf_counter() - t0
-    start = out["at_magnitude"].pop("_start", None)
+        m = dict(parameter=task.magnitude[0], value=float(task.magnitude[1]), absorbed=None,
+                 error=f"{type(err).__name__}: {err}")
+    add = dict(at_magnitude=m, wall_s=time.perf_counter() - t0)
+    start = m.pop("_start", None)
     if start is not None:
-        out["w_at_magnitude"], out["ev_M_at_magnitude"] = start["w"], start["ev_M"]
+        add.update(w_at_magnitude=start["w"], ev_M_at_magnitude=start["ev_M"])
+    return add
 
 
 def _chi2_by_fold(r: np.ndarray, row_run: np.ndarray, folds) -> list:

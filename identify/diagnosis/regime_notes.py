@@ -11,6 +11,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy import stats
 
+from identify.diagnosis.records import CandidateResult, Round
 from identify.diagnosis.regime_screen import moved_text, own_screen, parting, regime_screen, smallest_moves
 from identify.diagnosis.result import DiagnosisOptions, DiagnosisResult
 from identify.fitting.convergence import GIVE_UP_FEAS
@@ -179,7 +180,7 @@ def held_evidence(rnd: list, effects: list, check, current_chi2: float | None = 
     the data's while it fits the runs fitted as well, where the final model parts from
     them (``check``, its :class:`identify.fitting.regime_check.RegimeCheck`).
 
-    Each candidate with such a check gets ``held_regime``: the fitted runs' Δnll at the
+    Each candidate with such a check gets ``held_regime`` (a new record): the fitted runs' Δnll at the
     magnitude (``fits``: within the χ²₁ quantile of the current model and on continuity
     to :data:`identify.fitting.convergence.GIVE_UP_FEAS`), the left-out runs' regime χ² there against the
     final model's, and their sum, ``joint_delta_chi2`` = 2·Δnll + Δχ²_regime, with the
@@ -192,12 +193,13 @@ def held_evidence(rnd: list, effects: list, check, current_chi2: float | None = 
     Δχ² −54.5, p 1.6e-13); on top of the final values without the refit 1 µm kept the
     left-out runs too but shrank the fitted runs' largest slips (z 5.5, 7.8).
 
-    Returns those that fit and reproduce the runs first, then by joint Δχ²."""
+    Returns those (with their ``held_regime``) that fit and reproduce the runs first, then
+    by joint Δχ²."""
     if check is None or not check.df:
         return []
     out = []
-    for c in rnd:
-        am = c.get("at_magnitude") or {}
+    for c in map(CandidateResult.from_dict, rnd):  # (records; dicts of their fields are read as records)
+        am = c.at_magnitude or {}
         rc = am.get("regime") or {}
         dnll = am.get("delta_nll")
         if current_chi2 is not None and am.get("chi2") is not None:
@@ -205,20 +207,19 @@ def held_evidence(rnd: list, effects: list, check, current_chi2: float | None = 
             # joint needs (the round re-judges Δnll against its own re-solve of the current
             # model, which on the rejuvenation set ended at 2754.0, above its start's 2745.0)
             dnll = 0.5 * (float(am["chi2"]) - float(current_chi2))
-        if (not c.get("effect") or c["effect"] in effects or not c.get("ok") or not rc.get("df")
+        if (not c.effect or c.effect in effects or not c.ok or not rc.get("df")
                 or dnll is None or not np.isfinite(dnll)):
             continue
         fits = bool(dnll <= am["needed_delta_nll"] and am.get("continuity_um", math.inf) <= GIVE_UP_FEAS)
         joint = 2.0 * dnll + float(rc["chi2"]) - float(check.chi2)
-        c["held_regime"] = dict(
+        out.append(c.but(held_regime=dict(
             parameter=am["parameter"], value=am["value"], delta_nll=float(dnll),
             needed_delta_nll=am["needed_delta_nll"], continuity_um=am.get("continuity_um"), fits=fits,
             reproduces=bool(rc.get("reproduces")), mismatched=len(rc.get("mismatched", [])), df=int(rc["df"]),
             chi2=float(rc["chi2"]), final_mismatched=len(check.mismatched), final_chi2=float(check.chi2),
-            joint_delta_chi2=float(joint), p_value=float(stats.chi2.sf(-joint, 1)) if joint < 0 else 1.0)
-        out.append(c)
-    out.sort(key=lambda c: (not (c["held_regime"]["fits"] and c["held_regime"]["reproduces"]),
-                            c["held_regime"]["joint_delta_chi2"]))
+            joint_delta_chi2=float(joint), p_value=float(stats.chi2.sf(-joint, 1)) if joint < 0 else 1.0)))
+    out.sort(key=lambda c: (not (c.held_regime["fits"] and c.held_regime["reproduces"]),
+                            c.held_regime["joint_delta_chi2"]))
     return out
 
 
@@ -228,21 +229,21 @@ def held_note(held: list, n_runs: int) -> str | None:
     data's — not named from there (one of them alone is profiled next,
     :func:`identify.diagnosis.rounds._profile_held`); None where none does (the report's regime screen lists each
     reading)."""
-    yes = [c for c in held if c["held_regime"]["fits"] and c["held_regime"]["reproduces"]]
+    yes = [c for c in held if c.held_regime["fits"] and c.held_regime["reproduces"]]
     if not yes:
         return None
     head = ("held at its realistic magnitude with the model's own parameters refitted to the runs fitted, "
             f"each candidate read on the {n_runs} run(s) left out for their regime: ")
 
     def one(c):
-        h = c["held_regime"]
-        return (f"{c['effect']} at {h['parameter']} = {display(h['parameter'], h['value'])} fits them as well "
+        h = c.held_regime
+        return (f"{c.effect} at {h['parameter']} = {display(h['parameter'], h['value'])} fits them as well "
                 f"(Δnll {h['delta_nll']:+.2f}, within {h['needed_delta_nll']:.1f}) and makes the runs left out as "
                 f"the data's ({h['mismatched']} of {h['df']} parting, χ² {h['chi2']:.1f}, against the final model's "
                 f"{h['final_mismatched']} of {h['df']}, χ² {h['final_chi2']:.1f}): joint Δχ² "
                 f"{h['joint_delta_chi2']:.1f} (p = {h['p_value']:.2g})")
 
-    names = ", ".join(c["effect"] for c in yes)
+    names = ", ".join(c.effect for c in yes)
     tail = (f". Not named from here: {'its magnitude is' if len(yes) == 1 else 'their magnitudes are'} the "
             "library's, not estimated")
     tail += f"; nor can these runs tell {names} apart" if len(yes) > 1 else " (its profile follows)"
@@ -271,37 +272,43 @@ def regime_check_notes(law: str, values: dict, regime_runs: list, notes: list):
     return rc
 
 
-def regime_notes(scored: list, base: dict) -> None:
+def regime_notes(scored: list, base) -> list:
     """Say of each candidate whether it puts the left-out runs the current model misfits
-    for their regime (``base["regime"]``) in the data's regime."""
-    if "mismatched" not in (base.get("regime") or {}):
-        return
-    bad = set(base["regime"]["mismatched"])
-    for c in scored:
-        rc = c.get("regime") or {}
-        if not c.get("ok") or "mismatched" not in rc:
-            continue
-        fixed, broken = sorted(bad - set(rc["mismatched"])), sorted(set(rc["mismatched"]) - bad)
-        c["regime_fixed"], c["regime_broken"] = fixed, broken
-        said = []
-        if fixed:
-            said.append(f"under it {len(fixed)} of the {len(bad)} run(s) left out for their regime that the current "
-                        "model stick-slips lose their resolvable slips, as in the data")
-        elif bad:
-            said.append(f"it leaves the {len(bad)} run(s) left out for their regime stick-slipping, unlike the data")
-        if broken:  # evidence against it: the verdict's regime test will say so if it is named
-            said.append(f"it stick-slips where the data and the current model do not: {', '.join(broken)}")
-        if said:
-            c["note"] = "; ".join(([c["note"]] if c.get("note") else []) + said)
+    for their regime (``base.regime``) in the data's regime: the candidates, those it
+    applies to with their ``regime_fixed``, ``regime_broken`` and note."""
+    base = CandidateResult.from_dict(base)
+    if "mismatched" not in (base.regime or {}):
+        return list(scored)
+    return [_regime_note(CandidateResult.from_dict(c), set(base.regime["mismatched"])) for c in scored]
+
+
+def _regime_note(c, bad: set):
+    """:func:`regime_notes` of one candidate (``bad``: the runs the current model misfits)."""
+    rc = c.regime or {}
+    if not c.ok or "mismatched" not in rc:
+        return c
+    fixed, broken = sorted(bad - set(rc["mismatched"])), sorted(set(rc["mismatched"]) - bad)
+    c = c.but(regime_fixed=fixed, regime_broken=broken)
+    said = []
+    if fixed:
+        said.append(f"under it {len(fixed)} of the {len(bad)} run(s) left out for their regime that the current "
+                    "model stick-slips lose their resolvable slips, as in the data")
+    elif bad:
+        said.append(f"it leaves the {len(bad)} run(s) left out for their regime stick-slipping, unlike the data")
+    if broken:  # evidence against it: the verdict's regime test will say so if it is named
+        said.append(f"it stick-slips where the data and the current model do not: {', '.join(broken)}")
+    if said:
+        c = c.but(note="; ".join(([c.note] if c.note else []) + said))
+    return c
 
 
 def regime_left_note(check, rounds, effects) -> str:
     """The note of a final model that still puts left-out runs in another regime, with the
     candidates of the last round that had any, not named, under which none of them does."""
-    last = next((r for r in reversed(rounds) if any(c.get("effect") for c in r)), [])
-    fixers = [c["effect"] for c in last if c.get("effect") and c.get("effect") not in effects and c.get("ok")
-              and "mismatched" in (c.get("regime") or {})
-              and not set(c["regime"]["mismatched"]) & set(check.mismatched)]
+    rounds = [Round.of(r) for r in rounds]
+    last = next((r for r in reversed(rounds) if any(c.effect for c in r)), [])
+    fixers = [c.effect for c in last if c.effect and c.effect not in effects and c.ok
+              and "mismatched" in (c.regime or {}) and not set(c.regime["mismatched"]) & set(check.mismatched)]
     txt = "regime: " + check.text()
     if fixers:
         one = len(fixers) == 1

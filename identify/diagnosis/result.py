@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 
 from identify.diagnosis.features import feature_values
+from identify.diagnosis.records import CANDIDATE_KEYS as CANDIDATE_KEYS  # (re-exported)
+from identify.diagnosis.records import CandidateResult, Round
 from identify.diagnosis.regime_screen import moved_text, parting, smallest_moves
 from identify.diagnosis.where import Misfit
 from identify.fitting.convergence import GAVE_UP, STALLED
@@ -111,8 +113,8 @@ class DiagnosisResult(SavedResult):
     effects: list
     where: list  # Misfit, baseline
     where_final: list  # Misfit, final model
-    candidates: list  # dicts, first round, best first
-    rounds: list  # per round: list of candidate dicts
+    candidates: list  # CandidateResult, first round, best first
+    rounds: list  # Round: the current model measured, and its candidates
     baseline: Any  # FitResult
     final: dict  # values, free, law, gap, heldout gap
     confounded: list
@@ -131,14 +133,18 @@ class DiagnosisResult(SavedResult):
     final_problem: Any = field(repr=False, default=None)
     final_w: Any = field(repr=False, default=None)
 
+    def __post_init__(self):
+        # (rounds given as lists of dicts, the current model's first, as they once were)
+        self.rounds = [Round.of(r) for r in self.rounds]
+        self.candidates = [CandidateResult.from_dict(c) for c in self.candidates]
+
     def not_converged(self) -> list:
         """Every candidate refit, in any round, that failed or ended without converging
         (its round, effect and status)."""
         done = ("Solve_Succeeded", STALLED, GAVE_UP)
-        return [dict(round=k + 1, effect=c["effect"], status=str(c.get("status") or c.get("reason") or "failed"))
-                for k, rnd in enumerate(self.rounds) for c in rnd
-                if c.get("effect") and c.get("status") != "not applicable"
-                and (not c.get("ok") or c.get("status") not in done)]
+        return [dict(round=k + 1, effect=c.effect, status=str(c.status or c.reason or "failed"))
+                for k, rnd in enumerate(self.rounds) for c in rnd.candidates
+                if c.effect and c.status != "not applicable" and (not c.ok or c.status not in done)]
 
     def report(self) -> str:
         """The diagnosis as text: verdict and gaps, where the misfit lives, every round's
@@ -172,11 +178,11 @@ class DiagnosisResult(SavedResult):
                 f"{c['effect']} (round {c['round']}: {c['status']})" for c in unconverged))
         for grp in self.confounded:
             L.append(f"    confounded         = {' | '.join(grp['effects'])}: {grp['why']}")
-        base = next((c for c in (self.rounds[0] if self.rounds else []) if c.get("effect") is None), None)
-        if base and base.get("ok"):
-            L.append(f"    gap (fitted runs)  = {base['gap']['gap_um'] * 1e3:.1f} nm before; noise floor "
-                     f"{base['gap']['noise_um'] * 1e3:.1f} nm")
-            ho = base["heldout"]
+        base = self.rounds[0].current if self.rounds else None
+        if base is not None and base.ok:
+            L.append(f"    gap (fitted runs)  = {base.gap['gap_um'] * 1e3:.1f} nm before; noise floor "
+                     f"{base.gap['noise_um'] * 1e3:.1f} nm")
+            ho = base.heldout
             why = (f" (not computed: {ho['error']})" if ho.get("error") else
                    f" ({ho['refitted_folds']} fold(s) refitted: the linear leave-out step did not hold)"
                    if ho.get("refitted_folds") else "")
@@ -201,19 +207,18 @@ class DiagnosisResult(SavedResult):
             L.append(f"[[Candidates, round {k + 1}]]" + (f" (after adding {', '.join(self.effects[:k])})" if k else ""))
             L.append(f"    {'effect':24s} {'Δnll':>9s} {'p':>9s} {'ΔAIC':>9s} {'ΔBIC':>9s} {'gap nm':>13s} "
                      f"{'held-out nm':>13s} {'Δnll h-o':>9s}  note")
-            for c in rnd:
-                if c.get("effect") is None:
+            for c in rnd.candidates:
+                if c.effect is None:
                     continue
-                if not c.get("ok"):
-                    L.append(f"    {c['effect']:24s} {c.get('reason') or c.get('status')}")
+                if not c.ok:
+                    L.append(f"    {c.effect:24s} {c.reason or c.status}")
                     continue
-                p = c["p_value"]
-                L.append(f"    {c['effect']:24s} {_cell(c['delta_nll'], '9.2f')} {_cell(p, '9.2g')} "
-                         f"{_cell(c['delta_aic'], '9.1f')} {_cell(c['delta_bic'], '9.1f')} "
-                         f"{_cell(_nm(c['gap_before_um']), '5.1f')}->{_cell(_nm(c['gap_after_um']), '<6.1f')} "
-                         f"{_cell(_nm(c['heldout_gap_before_um']), '5.1f')}->"
-                         f"{_cell(_nm(c['heldout_gap_after_um']), '<6.1f')} "
-                         f"{_cell(c.get('heldout_delta_nll'), '9.2f')}  {c['note']}")
+                L.append(f"    {c.effect:24s} {_cell(c.delta_nll, '9.2f')} {_cell(c.p_value, '9.2g')} "
+                         f"{_cell(c.delta_aic, '9.1f')} {_cell(c.delta_bic, '9.1f')} "
+                         f"{_cell(_nm(c.gap_before_um), '5.1f')}->{_cell(_nm(c.gap_after_um), '<6.1f')} "
+                         f"{_cell(_nm(c.heldout_gap_before_um), '5.1f')}->"
+                         f"{_cell(_nm(c.heldout_gap_after_um), '<6.1f')} "
+                         f"{_cell(c.heldout_delta_nll, '9.2f')}  {c.note}")
         return L
 
     def _report_regime_screen(self) -> list:
@@ -239,13 +244,13 @@ class DiagnosisResult(SavedResult):
         if self.regime_moves:
             L.append(f"    ({len(self.regime_moves)} move(s) of the current model's own parameters tried, one "
                      "at a time toward each bound)")
-        last = self.rounds[-1] if self.rounds else []
-        for c in [c for c in last if c.get("held_regime")]:
-            h = c["held_regime"]
+        last = self.rounds[-1] if self.rounds else Round()
+        for c in [c for c in last if c.held_regime]:
+            h = c.held_regime
             fits = ("fits the runs fitted as well" if h["fits"] else "fits the runs fitted worse"
                     if h["delta_nll"] > h["needed_delta_nll"] else
                     f"stopped {(h['continuity_um'] or float('nan')) * 1e3:.1f} nm off continuity")
-            L.append(f"    {c['effect'] + ', held':24s} {str(h['mismatched']) + ' of ' + str(h['df']):>13s} "
+            L.append(f"    {c.effect + ', held':24s} {str(h['mismatched']) + ' of ' + str(h['df']):>13s} "
                      f"{h['chi2']:9.1f}  "
                      f"at {h['parameter']} = {display(h['parameter'], h['value'])}, refitted: {fits} "
                      f"(Δnll {h['delta_nll']:+.2f}); joint Δχ² {h['joint_delta_chi2']:.1f}")
@@ -273,8 +278,8 @@ class DiagnosisResult(SavedResult):
             verdict=self.verdict, effects=list(self.effects), not_converged=self.not_converged(),
             where=[m.to_json() for m in self.where],
             where_final=[m.to_json() for m in self.where_final],
-            candidates=[_cand_json(c) for c in self.candidates],
-            rounds=[[_cand_json(c) for c in rnd if c.get("effect")] for rnd in self.rounds],
+            candidates=[c.to_dict() for c in self.candidates],
+            rounds=[rnd.to_json() for rnd in self.rounds],
             confounded=self.confounded,
             final=self.final,
             baseline=self.baseline.to_json() if self.baseline is not None else None,
@@ -285,8 +290,7 @@ class DiagnosisResult(SavedResult):
             timing=self.timing, notes=self.notes, regime_screen=self.regime_screen, regime_moves=self.regime_moves,
             regime_profile=self.regime_profile,
             # each round's measurement of the current model (the report's gaps; ``rounds`` lists candidates only)
-            current_model=[next(({**_cand_json(c), "gap": c.get("gap"), "heldout": c.get("heldout")}
-                                 for c in rnd if c.get("effect") is None), None) for rnd in self.rounds],
+            current_model=[rnd.current_json() for rnd in self.rounds],
         )
 
     @classmethod
@@ -297,7 +301,7 @@ class DiagnosisResult(SavedResult):
         from identify.fitting.result import FitResult
 
         current = d.get("current_model") or [None] * len(d.get("rounds", []))
-        rounds = [([base] if base is not None else []) + list(rnd) for base, rnd in zip(current, d.get("rounds", []))]
+        rounds = [Round.from_json(rnd, base) for base, rnd in zip(current, d.get("rounds", []))]
         o = d.get("options") or {}
         opts = DiagnosisOptions(**{k: o[k] for k in ("effects", "folds", "alpha", "workers", "gap_tolerance",
                                                      "resequence", "magnitude_check") if k in o})
@@ -366,18 +370,3 @@ def _cell(x, fmt: str) -> str:
     if x is None or not math.isfinite(float(x)):
         return f"{'–':{'<' if fmt.startswith('<') else '>'}{width}s}"
     return f"{x:{fmt}}"
-
-
-CANDIDATE_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "delta_bic", "confounded_with",
-              "gap_before_um", "gap_after_um", "heldout_gap_before_um", "heldout_gap_after_um", "significant",
-              "named", "note", "ok", "status", "iterations", "wall_s", "law", "r2_with_model",
-              "closed_fraction", "estimates", "rounds", "heldout_refitted_folds",
-              "heldout_unverified_folds", "heldout_error", "heldout_delta_nll", "explained_share",
-              "closes", "gap_sigma_before", "gap_sigma_after", "heldout_gap_sigma_before",
-              "heldout_gap_sigma_after", "heldout_by_fold", "heldout_set_aside", "at_floor",
-              "heldout_gap_ratio_before", "beside", "mimicked", "own_sequence", "wald_z", "undetermined",
-              "at_magnitude", "regime", "regime_fixed", "regime_broken", "held_regime")
-
-
-def _cand_json(c: dict) -> dict:
-    return {k: c.get(k) for k in CANDIDATE_KEYS}

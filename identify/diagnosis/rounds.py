@@ -26,8 +26,9 @@ it shrinks once that effect is added — on runs the fit did not see (DESIGN.md 
    no candidate closes, or one only confounded candidates do).
 
 This module runs the rounds; the pieces live beside it: the options and the result
-(:mod:`~identify.diagnosis.result`), the refit tasks (:mod:`~identify.diagnosis.tasks`), their
-scores (:mod:`~identify.diagnosis.scores`), which one is named
+(:mod:`~identify.diagnosis.result`), the records of each refit and round
+(:mod:`~identify.diagnosis.records`: frozen, each decision returns new ones), the refit
+tasks (:mod:`~identify.diagnosis.tasks`), their scores (:mod:`~identify.diagnosis.scores`), which one is named
 (:mod:`~identify.diagnosis.selection`), the mode sequence decided again
 (:mod:`~identify.diagnosis.resequence`) and the runs left out for their regime
 (:mod:`~identify.diagnosis.regime_notes`).
@@ -49,6 +50,7 @@ from identify import interrupts
 from identify.diagnosis.candidates import run_candidate
 from identify.diagnosis.heldout import folds_of
 from identify.diagnosis.record import DiagnosisRecord, RecordedExecutor, inputs_digest
+from identify.diagnosis.records import CandidateResult, Round
 from identify.diagnosis.regime_notes import (
     REGIME_MISMATCH,
     SCREEN_AT_FINAL,
@@ -64,7 +66,7 @@ from identify.diagnosis.regime_screen import moved_text, own_screen, smallest_mo
 from identify.diagnosis.resequence import rebuild_problem, resequence
 from identify.diagnosis.result import DiagnosisOptions, DiagnosisResult
 from identify.diagnosis.scores import MIN_CLOSED, closed_share, score_round
-from identify.diagnosis.selection import at_noise, choose_named, own_text, refit_beside
+from identify.diagnosis.selection import at_noise, choose_named, own_text, put, refit_beside
 from identify.diagnosis.tasks import candidate_tasks, expected_cost, rank_tasks
 from identify.diagnosis.verdict import final_record
 from identify.diagnosis.verdict import verdict as decide_verdict
@@ -183,15 +185,16 @@ def _diagnose(data, *, coating, fit_options, options, baseline, executor, progre
     where_final = with_regime(where(final_prob, final_w) if st.effects else st.where0, regime_final)
     verdict, ratio = decide_verdict(st, where_final, regime_final)
     st.notes.extend(later)
-    ok = bool(st.final_res and st.final_res.get("ok"))
+    ok = bool(st.final_res is not None and st.final_res.ok)
     final = final_record(st, ok, ratio, profile)
     if not ok:
         verdict = "unexplained"
-        st.notes.append("the refits failed, so no gap could be measured: " + (st.final_res or {}).get("status", "?"))
+        status = st.final_res.status if st.final_res is not None and st.final_res.status is not None else "?"
+        st.notes.append("the refits failed, so no gap could be measured: " + status)
     rounds = st.rounds
     return DiagnosisResult(
         verdict=verdict, effects=st.effects, where=st.where0, where_final=where_final,
-        candidates=[c for c in rounds[0] if c.get("effect")] if rounds else [], rounds=rounds,
+        candidates=list(rounds[0].candidates) if rounds else [], rounds=rounds,
         baseline=baseline, final=final, confounded=st.confounded, options=opts,
         timing=dict(total_s=time.perf_counter() - t0, refits=st.n_refits,
                     baseline_fit_s=float(baseline.solver.get("wall_time_s", float("nan")))),
@@ -218,10 +221,10 @@ class _State:
     say: Any
     remaining: list
     notes: list = field(default_factory=list)
-    rounds: list = field(default_factory=list)
+    rounds: list[Round] = field(default_factory=list)
     effects: list = field(default_factory=list)
     confounded: list = field(default_factory=list)
-    final_res: dict | None = None
+    final_res: CandidateResult | None = None
     n_refits: int = 0
     # candidates that fit better held at their realistic magnitude than refitted
     at_magnitude: dict = field(default_factory=dict)
@@ -264,14 +267,14 @@ def _refits(st: _State, tasks) -> list:
         try:
             futs[st.executor.submit(run_candidate, t)] = t
         except Exception as err:  # a broken pool or a lost cluster: the candidate fails
-            results.append(dict(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err)))
+            results.append(CandidateResult(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err)))
     for fut in cf.as_completed(futs):
         t = futs[fut]
         try:
-            res = fut.result()
+            res = CandidateResult.from_dict(fut.result())  # (a record written by an earlier version: a dict)
         except Exception as err:  # a lost worker: the candidate fails, the rest goes on
-            res = dict(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err))
-        stage.advance(f"{t.effect or 'current model'} ({res.get('status')})")
+            res = CandidateResult(effect=t.effect, ok=False, status=f"failed: {err}", error=str(err))
+        stage.advance(f"{t.effect or 'current model'} ({res.status})")
         results.append(res)
     return results
 
@@ -284,10 +287,10 @@ def _one_round(st: _State) -> bool:
                                      where_hint=st.where0, regime_runs=st.regime_runs, at_magnitude=st.at_magnitude)
     results = _refits(st, tasks)
     st.n_refits += len(tasks)
-    base = next(r for r in results if r["effect"] is None)
-    if not base.get("ok"):
-        st.notes.append(f"the current model could not be re-evaluated: {base.get('status')}")
-        st.rounds.append([base] + skipped)
+    base = next(r for r in results if r.effect is None)
+    if not base.ok:
+        st.notes.append(f"the current model could not be re-evaluated: {base.status}")
+        st.rounds.append(Round(current=base, candidates=tuple(skipped)))
         if st.final_res is not None:  # the named candidate's numbers, on the sequence it was named on
             st.notes.append("the gaps after are the last named candidate's, on the mode sequence it was "
                             "named on")
@@ -297,7 +300,6 @@ def _one_round(st: _State) -> bool:
     st.final_res = base  # the current model, measured in this round
     n_cand = len([t for t in tasks if t.effect])
     scored = score_round(results, base, opts, n_cand, fold_names=[[st.runs[i].name for i in f] for f in st.folds])
-    st.rounds.append([base] + sorted(scored, key=rank_tasks) + skipped)
     retry = None
     if opts.resequence is not False:
         retry = functools.partial(_own_sequence, base=base, current=st.current, runs=st.runs, fopts=st.fopts,
@@ -306,46 +308,52 @@ def _one_round(st: _State) -> bool:
     beside = functools.partial(refit_beside, scored=scored, base=base, current=st.current, runs=st.runs,
                                fopts=st.fopts, opts=opts, threads=st.threads, executor=st.executor,
                                where_hint=st.where0, n_cand=n_cand, say=say)
-    chosen, groups = choose_named(scored, base, beside, retry)
-    regime_notes(scored, base)
+    chosen, groups, scored = choose_named(scored, base, beside, retry)
+    scored = regime_notes(scored, base)
     st.confounded.extend(groups)
-    st.n_refits += sum(len(c.get("beside", [])) for c in scored)  # each check is a refit
+    st.n_refits += sum(len(c.beside or []) for c in scored)  # each check is a refit
     # each measurement on a candidate's own sequence, and of the current model's control
-    st.n_refits += sum(c.get("own_sequence", {}).get("refits", 0) for c in scored)
-    adopted = chosen.pop("_own", None) if chosen is not None else None
-    for c in scored:
-        c.pop("_own", None)  # (the models of candidates not named)
+    st.n_refits += sum((c.own_sequence or {}).get("refits", 0) for c in scored)
+    # the model measured on the chosen one's own mode sequence; none kept on the records
+    adopted = next(c.own_model for c in scored if c.effect == chosen.effect) if chosen is not None else None
+    scored = [c.but(own_model=None) if c.own_model is not None else c for c in scored]
     if chosen is None or len(st.effects) >= opts.max_effects:
-        return False  # (a round of the final model alone also ends here: it has no candidates)
+        # (a round of the final model alone also ends here: it has no candidates)
+        st.rounds.append(Round(current=base, candidates=tuple(sorted(scored, key=rank_tasks)) + tuple(skipped)))
+        return False
+    # (the chosen one as the round leaves it: with the notes added since it was chosen)
+    chosen = next(c for c in scored if c.effect == chosen.effect).but(named=True)
+    scored = put(scored, [chosen])
+    st.rounds.append(Round(current=base, candidates=tuple(sorted(scored, key=rank_tasks)) + tuple(skipped),
+                           chosen=chosen.effect))
     return _add_named(st, chosen, adopted, scored)
 
 
-def _add_named(st: _State, chosen: dict, adopted: dict | None, scored: list) -> bool:
-    """The chosen candidate added to the current model, what the next round tries, and the
-    mode sequence decided again under it. False when nothing is left to try."""
+def _add_named(st: _State, chosen: CandidateResult, adopted: dict | None, scored: list) -> bool:
+    """The chosen candidate (named) added to the current model, what the next round tries, and
+    the mode sequence decided again under it. False when nothing is left to try."""
     opts = st.opts
-    chosen["named"] = True
     st.final_res = chosen  # the model with it, as measured in this round
-    st.effects.append(chosen["effect"])
+    st.effects.append(chosen.effect)
     # the next round retries only what was significant in this one: adding an
     # effect explains part of the misfit, it does not create evidence elsewhere
-    st.remaining = [c["effect"] for c in scored if c.get("significant") and c["effect"] != chosen["effect"]]
+    st.remaining = [c.effect for c in scored if c.significant and c.effect != chosen.effect]
     # ... and what fit better held at its realistic magnitude than its refit, which
     # ended near its null (evidence without an estimate), started there too.
     # Measured (the two-effect set, load offset and step size): in round 1 the step
     # size's refit stayed at 1 ± 0.013 while 1.05 fit better; not retried, round 2
     # named the topography (a ripple of 9.9 µm) in its place
-    st.at_magnitude = {c["effect"]: c["at_magnitude"] for c in scored
-                       if (c.get("at_magnitude") or {}).get("better") and c["effect"] != chosen["effect"]}
+    st.at_magnitude = {c.effect: c.at_magnitude for c in scored
+                       if (c.at_magnitude or {}).get("better") and c.effect != chosen.effect}
     st.remaining += [e for e in st.at_magnitude if e not in st.remaining]
-    eff = get_effect(chosen["effect"])
+    eff = get_effect(chosen.effect)
     if adopted:  # named on the mode sequence it decided: go on from there, as measured there
         st.current, st.runs, st.final_res = adopted["current"], adopted["runs"], adopted["measured"]
     else:
-        st.current = dict(values=chosen["values"], free=tuple(chosen["free"]), law=chosen["law"],
-                          w=chosen["w"], ev_M=chosen["ev_M"], n_theta=len(chosen["free"]), chi2=chosen["chi2"],
-                          n_eff=chosen["n_eff"], bounds={**st.current.get("bounds", {}), **dict(eff.bounds)})
-    st.say(f"added {chosen['effect']} ({', '.join(eff.parameters) or eff.law}); trying the rest again")
+        st.current = dict(values=chosen.values, free=tuple(chosen.free), law=chosen.law,
+                          w=chosen.w, ev_M=chosen.ev_M, n_theta=len(chosen.free), chi2=chosen.chi2,
+                          n_eff=chosen.n_eff, bounds={**st.current.get("bounds", {}), **dict(eff.bounds)})
+    st.say(f"added {chosen.effect} ({', '.join(eff.parameters) or eff.law}); trying the rest again")
     if len(st.effects) >= opts.max_effects:
         st.remaining = []
     changed = False
@@ -353,14 +361,14 @@ def _add_named(st: _State, chosen: dict, adopted: dict | None, scored: list) -> 
         try:
             st.current, st.runs, changed = resequence(st.current, st.runs, st.fopts, st.prob, st.say)
         except Exception as err:  # the named model stands with the baseline's sequence
-            st.notes.append(f"deciding the mode sequence again with {chosen['effect']} failed: "
+            st.notes.append(f"deciding the mode sequence again with {chosen.effect} failed: "
                             f"{type(err).__name__}: {err}")
     if not st.remaining and not changed:
         # nothing left to try: the final model is this candidate's refit, already
         # measured on the same folds (a round of it alone refitted every held-out
         # fold again: 8 exact refits, ~10 min, on the drift data), and no candidate
         # is left for the verdict to judge
-        st.rounds.append([dict(st.final_res if adopted else chosen, effect=None, named=False)])
+        st.rounds.append(Round(current=(st.final_res if adopted else chosen).but(effect=None, named=False)))
         return False
     return True
 
@@ -374,13 +382,16 @@ def _regime_left_out(st: _State, regime_final):
     screen = final_screen(st.current, st.regime_runs, st.effects, st.opts, st.say, st.executor)
     if len(screen) > 1:
         later.append(screen_note(screen[0], screen[1:], at=SCREEN_AT_FINAL))
-    last = st.rounds[-1] if st.rounds else []
+    last = st.rounds[-1] if st.rounds else Round()
     held = held_evidence(last, st.effects, regime_final, st.current.get("chi2"))
     held_txt = held_note(held, len(st.regime_runs))
     if held_txt:
         later.append(held_txt)
-    profile = _profile_held(held, st.current, st.runs, st.fopts, st.opts, st.regime_runs, regime_final, st.executor,
-                            st.say, n_cand=len([c for c in last if c.get("effect")]), confounded=st.confounded)
+    profile, changed = _profile_held(held, st.current, st.runs, st.fopts, st.opts, st.regime_runs, regime_final,
+                                     st.executor, st.say, n_cand=len([c for c in last if c.effect]),
+                                     confounded=st.confounded)
+    if st.rounds:  # the last round's candidates with what was found of them here
+        st.rounds[-1] = last.but(candidates=tuple(put(list(last.candidates), held + changed)))
     if profile is not None:
         later.append(profile["note"])
     named = bool(profile is not None and profile.get("named"))
@@ -400,7 +411,7 @@ def _regime_left_out(st: _State, regime_final):
 
 
 def _profile_held(held: list, current: dict, runs: list, fopts, opts: DiagnosisOptions, regime_runs: list, check,
-                  executor, say, n_cand: int, confounded: list) -> dict | None:
+                  executor, say, n_cand: int, confounded: list) -> tuple:
     """Name a candidate on the runs left out for their regime, where only they show it.
 
     The one candidate whose check at its magnitude fits the runs fitted as well and makes
@@ -418,36 +429,36 @@ def _profile_held(held: list, current: dict, runs: list, fopts, opts: DiagnosisO
     410 s against 216 s before, both beside another slow test on two cores.
 
     Returns the profile's record with ``named``, ``significant``, ``own_moves`` and a
-    ``note`` (``best`` too: the model to go on with), or None where nothing was profiled."""
+    ``note`` (``best`` too: the model to go on with), or None where nothing was profiled;
+    and the candidates of ``held`` with what it found of them (confounded, named)."""
     from identify.diagnosis.regime_profile import regime_profile
     from identify.fitting.regime_check import RegimeRun
 
-    yes = [c for c in held if c["held_regime"]["fits"] and c["held_regime"]["reproduces"]]
+    yes = [c for c in held if c.held_regime["fits"] and c.held_regime["reproduces"]]
     if not yes:
-        return None
+        return None, []
     if len(yes) > 1:
-        names = [c["effect"] for c in yes]
-        for c in yes:
-            c["confounded_with"] = [n for n in names if n != c["effect"]]
+        names = [c.effect for c in yes]
         why = ("each, held at its realistic magnitude and refitted, fits the runs fitted as well and makes the runs "
                "left out for their regime as the data's: these runs cannot tell them apart")
         confounded.append(dict(effects=names, confounded_with=[], closes=False, why=why))
-        return dict(effect=None, named=False, note=f"regime profile: not run, {' | '.join(names)}: {why}")
+        return (dict(effect=None, named=False, note=f"regime profile: not run, {' | '.join(names)}: {why}"),
+                [c.but(confounded_with=[n for n in names if n != c.effect]) for c in yes])
     c = yes[0]
-    eff = get_effect(c["effect"])
-    if eff.law is not None or len(eff.parameters) != 1 or c.get("w_at_magnitude") is None:
-        return None
-    tasks, _ = candidate_tasks([c["effect"]], current, runs, fopts, [], opts, 1, [], regime_runs=regime_runs)
+    eff = get_effect(c.effect)
+    if eff.law is not None or len(eff.parameters) != 1 or c.w_at_magnitude is None:
+        return None, []
+    tasks, _ = candidate_tasks([c.effect], current, runs, fopts, [], opts, 1, [], regime_runs=regime_runs)
     noise = {r.name: r.noise_m * 1e6 for r in regime_runs}
-    am = c["at_magnitude"]
+    am = c.at_magnitude
     try:
-        prof = regime_profile(tasks[1], dict(value=am["value"], w=c["w_at_magnitude"], ev_M=c["ev_M_at_magnitude"]),
+        prof = regime_profile(tasks[1], dict(value=am["value"], w=c.w_at_magnitude, ev_M=c.ev_M_at_magnitude),
                               current["chi2"], check.to_json(), noise, executor=executor, say=say,
                               continuity_um=GIVE_UP_FEAS)
     except Exception as err:  # the diagnosis stands without it
         say(f"regime profile failed: {type(err).__name__}: {err}")
-        return dict(effect=c["effect"], named=False, note=f"regime profile of {c['effect']} failed: "
-                                                          f"{type(err).__name__}: {err}")
+        return dict(effect=c.effect, named=False, note=f"regime profile of {c.effect} failed: "
+                                                       f"{type(err).__name__}: {err}"), []
     alpha_c = opts.alpha / max(n_cand, 1)
     prof["significant"] = bool(prof["p_value"] < alpha_c and prof.get("null_excluded"))
     own = []
@@ -460,16 +471,15 @@ def _profile_held(held: list, current: dict, runs: list, fopts, opts: DiagnosisO
     prof["named"] = bool(prof["significant"] and prof["reproduces"] and not own)
     if own:
         params = sorted({n for r in own for n in r["moved"]})
-        c["confounded_with"] = params
-        confounded.append(dict(effects=[c["effect"]], confounded_with=params, closes=False,
+        c = c.but(confounded_with=params)
+        confounded.append(dict(effects=[c.effect], confounded_with=params, closes=False,
                                why=(f"its profile on every run is significant, and the current model with "
                                     f"{' or '.join(prof['own_moves'])} makes every run as the data's too")))
     if prof["named"]:
-        c["named"] = True
-        c["note"] = "; ".join(x for x in (c.get("note"), "named by its profile on every run (see the regime profile)")
-                              if x)
+        c = c.but(named=True, note="; ".join(x for x in (c.note, "named by its profile on every run (see the regime "
+                                                                "profile)") if x))
     prof["note"] = _profile_note(prof, alpha_c)
-    return prof
+    return prof, [c]
 
 
 def _profile_note(prof: dict, alpha_c: float) -> str:
@@ -499,8 +509,8 @@ def _profile_note(prof: dict, alpha_c: float) -> str:
 
 def _own_sequence(c, base, current, runs, fopts, prob0, folds, opts, threads, executor, say):
     """The candidate ``c`` measured on the mode sequence it decides itself: its held-out
-    gap there against the current model's on the current model's own sequence, in
-    ``c["own_sequence"]`` (JSON-able; the new model and runs in ``c["_own"]`` for naming).
+    gap there against the current model's on the current model's own sequence: ``c`` with
+    its ``own_sequence`` (JSON-able; the new model and runs in its ``own_model`` for naming).
 
     Why: the current model's fit decided the sequence (moved triggers, inserted slips) to
     suit the current model; a candidate refitted on that sequence inherits the bends, and
@@ -513,30 +523,30 @@ def _own_sequence(c, base, current, runs, fopts, prob0, folds, opts, threads, ex
     solution too, and measured there when that changes it (only once the candidate
     passes: decided once in its fit, it mostly stands)."""
     rec = dict(changed=False, refits=0)
-    c["own_sequence"] = rec
 
     def measure(model, runs_):
         task = candidate_tasks([], model, runs_, fopts, folds, opts, threads, where_hint=[])[0][0]
         rec["refits"] += 1
-        res = executor.submit(run_candidate, task).result()
-        if not res.get("ok") or not np.isfinite((res.get("heldout") or {}).get("gap_um", float("nan"))):
-            raise RuntimeError(f"its held-out gap could not be measured ({res.get('status')}"
-                               f"{', ' + res['heldout']['error'] if (res.get('heldout') or {}).get('error') else ''})")
+        res = CandidateResult.from_dict(executor.submit(run_candidate, task).result())
+        ho = res.heldout or {}
+        if not res.ok or not np.isfinite(ho.get("gap_um", float("nan"))):
+            raise RuntimeError(f"its held-out gap could not be measured ({res.status}"
+                               f"{', ' + ho['error'] if ho.get('error') else ''})")
         return res
 
     try:
-        eff = get_effect(c["effect"])
-        cand = dict(values=dict(c["values"]), free=tuple(c["free"]), law=c["law"], w=c["w"], ev_M=c["ev_M"],
-                    n_theta=len(c["free"]), chi2=c["chi2"], n_eff=c["n_eff"],
+        eff = get_effect(c.effect)
+        cand = dict(values=dict(c.values), free=tuple(c.free), law=c.law, w=c.w, ev_M=c.ev_M,
+                    n_theta=len(c.free), chi2=c.chi2, n_eff=c.n_eff,
                     bounds={**current.get("bounds", {}), **dict(eff.bounds)})
-        say(f"  {c['effect']} explains {100 * c['explained_share']:.0f} % of the excess χ² but closes "
-            f"{100 * max(c['closed_fraction'], 0):.0f} % of the held-out gap: measured on its own mode sequence")
+        say(f"  {c.effect} explains {100 * c.explained_share:.0f} % of the excess χ² but closes "
+            f"{100 * max(c.closed_fraction, 0):.0f} % of the held-out gap: measured on its own mode sequence")
         new, runs2, changed = resequence(cand, runs, fopts, prob0, say)
         if not changed:
-            return
+            return c.but(own_sequence=rec)
         m = measure(new, runs2)
-        noise = base["gap"]["noise_um"]
-        before, after = float(base["heldout"]["gap_um"]), float(m["heldout"]["gap_um"])
+        noise = base.gap["noise_um"]
+        before, after = float(base.heldout["gap_um"]), float(m.heldout["gap_um"])
         closed = closed_share(before, after, noise)
         ctrl = None
         if closed >= MIN_CLOSED:
@@ -544,16 +554,16 @@ def _own_sequence(c, base, current, runs, fopts, prob0, folds, opts, threads, ex
             model_c, runs_c, changed_c = resequence(current, runs, fopts, prob0, say)
             ctrl = dict(changed=bool(changed_c), **model_c.get("sequence_changes", {}))
             if changed_c:
-                before = float(measure(model_c, runs_c)["heldout"]["gap_um"])
+                before = float(measure(model_c, runs_c).heldout["gap_um"])
                 closed = closed_share(before, after, noise)
         # recorded only now: a comparison the control could not complete names nothing
         rec.update(changed=True, **new["sequence_changes"], heldout_gap_before_um=before, heldout_gap_after_um=after,
-                   gap_after_um=float(m["gap"]["gap_um"]), chi2=float(m["chi2"]), closed_fraction=float(closed))
+                   gap_after_um=float(m.gap["gap_um"]), chi2=float(m.chi2), closed_fraction=float(closed))
         if ctrl is not None:
             rec["current_resequenced"] = ctrl
-        c["_own"] = dict(current=new, runs=runs2, measured=m)
-        say(f"  {c['effect']}: {own_text(rec)}")
+        say(f"  {c.effect}: {own_text(rec)}")
+        return c.but(own_sequence=rec, own_model=dict(current=new, runs=runs2, measured=m))
     except Exception as err:  # the candidate is judged on the current sequence, as before
         rec.update(changed=False, error=f"{type(err).__name__}: {err}")
-        c.pop("_own", None)
-        say(f"  {c['effect']}: {own_text(rec)}")
+        say(f"  {c.effect}: {own_text(rec)}")
+        return c.but(own_sequence=rec, own_model=None)

@@ -9,6 +9,7 @@ import numpy as np
 from scipy import stats
 
 from identify.diagnosis.magnitude_check import MAGNITUDE_MOVED_Z
+from identify.diagnosis.records import CandidateResult
 from identify.diagnosis.refit_screen import GIVE_UP_MARGIN
 from identify.fitting.convergence import GAVE_UP, NOT_DIFFERENTIABLE
 from identify.model.effects import display, get_effect
@@ -25,152 +26,149 @@ EXCESS_FLOOR = 3.0  # the excess χ² a share is taken of is at least this many 
 MIN_FOLDS_SET_ASIDE = 5  # one-run folds needed before one may be set aside (the rest must decide)
 
 
-def score_round(results, base, opts, n_cand, fold_names=None) -> list:
-    """Likelihood ratio, ΔAIC, ΔBIC, confounding and gaps of every candidate against base."""
+def score_round(results, base: CandidateResult, opts, n_cand, fold_names=None) -> list:
+    """Likelihood ratio, ΔAIC, ΔBIC, confounding and gaps of every candidate against base:
+    the candidates (not the current model) as new records."""
     out = []
     alpha_c = opts.alpha / max(n_cand, 1)
     for c in results:
-        if c["effect"] is None:
+        if c.effect is None:
             continue
-        eff = get_effect(c["effect"])
-        c["parameters"] = list(eff.parameters) if eff.nested else list(c.get("free", []))
-        if not c.get("ok"):
-            c["note"] = c.get("status", "failed")
-            c["significant"] = False
-            out.append(c)
-            continue
-        dnll = _score_likelihood(c, base, eff, alpha_c)
-        _score_gaps(c, base, fold_names)
-        _score_confounding(c, base, eff)
-        if dnll < -1e-6 * max(base["chi2"], 1.0):
-            c["significant"] = False
-            c["heldout_gap_after_um"] = c["gap_after_um"] = float("nan")
-            c["worse"] = True
-        _score_closing(c, base, eff, opts)
-        c["note"] = _note(c)
-        m = c.get("at_magnitude")
-        if m and not c["significant"]:
-            _judge_magnitude_again(m, base, c)
-            c["note"] += f" ({_magnitude_text(m)})"
-            if m.get("absorbed") and m.get("partners") and not c["confounded_with"]:
-                # not seen near its null, yet absorbed at its realistic size: the model's
-                # own parameters stand in for it there (magnitude_check.at_magnitude)
-                c["confounded_with"] = list(m["partners"])
-        out.append(c)
+        out.append(score_one(c, base, opts, alpha_c, fold_names))
     return out
 
 
-def _score_likelihood(c: dict, base: dict, eff, alpha_c: float):
+def score_one(c: CandidateResult, base: CandidateResult, opts, alpha_c: float, fold_names=None) -> CandidateResult:
+    """One candidate scored against ``base`` (``alpha_c``: the Bonferroni-divided level)."""
+    eff = get_effect(c.effect)
+    c = c.but(parameters=list(eff.parameters) if eff.nested else list(c.free or []))
+    if not c.ok:
+        return c.but(note=c.status if c.status is not None else "failed", significant=False)
+    c = c.but(**_score_likelihood(c, base, eff, alpha_c))
+    c = c.but(**_score_gaps(c, base, fold_names))
+    c = c.but(**_score_confounding(c, base, eff))
+    if c.delta_nll < -1e-6 * max(base.chi2, 1.0):
+        c = c.but(significant=False, heldout_gap_after_um=float("nan"), gap_after_um=float("nan"), worse=True)
+    c = _score_closing(c, base, eff, opts)
+    c = c.but(note=_note(c))
+    m = c.at_magnitude
+    if m and not c.significant:
+        m = judge_magnitude_again(m, base, c)
+        c = c.but(at_magnitude=m, note=c.note + f" ({_magnitude_text(m)})")
+        if m.get("absorbed") and m.get("partners") and not c.confounded_with:
+            # not seen near its null, yet absorbed at its realistic size: the model's
+            # own parameters stand in for it there (magnitude_check.at_magnitude)
+            c = c.but(confounded_with=list(m["partners"]))
+    return c
+
+
+def _score_likelihood(c: CandidateResult, base: CandidateResult, eff, alpha_c: float) -> dict:
     """The likelihood ratio, ΔAIC, ΔBIC, p-value and significance of ``c`` against ``base``
-    (``alpha_c``: the Bonferroni-divided level); returns the Δnll."""
-    n_obs = base["n_obs"]
-    dk = c["n_eff"] - base["n_eff"]
-    dnll = 0.5 * (base["chi2"] - c["chi2"])
-    c["delta_nll"] = float(dnll)
-    c["delta_aic"] = float(-2 * dnll + 2 * dk)
-    c["delta_bic"] = float(-2 * dnll + dk * math.log(max(n_obs, 2)))
+    (``alpha_c``: the Bonferroni-divided level)."""
+    n_obs = base.n_obs
+    dk = c.n_eff - base.n_eff
+    dnll = 0.5 * (base.chi2 - c.chi2)
+    out = dict(delta_nll=float(dnll), delta_aic=float(-2 * dnll + 2 * dk),
+               delta_bic=float(-2 * dnll + dk * math.log(max(n_obs, 2))))
     if eff.nested and dk > 0:
-        c["p_value"] = float(stats.chi2.sf(max(2 * dnll, 0.0), dk))
-        sig = c["p_value"] < alpha_c and c["delta_bic"] < 0
+        out["p_value"] = float(stats.chi2.sf(max(2 * dnll, 0.0), dk))
+        sig = out["p_value"] < alpha_c and out["delta_bic"] < 0
     else:
-        c["p_value"] = None
-        sig = c["delta_aic"] < LAW_DELTA_AIC
-    c["significant"] = bool(sig)
-    return dnll
+        out["p_value"] = None
+        sig = out["delta_aic"] < LAW_DELTA_AIC
+    out["significant"] = bool(sig)
+    return out
 
 
-def _score_gaps(c: dict, base: dict, fold_names) -> None:
+def _score_gaps(c: CandidateResult, base: CandidateResult, fold_names) -> dict:
     """The gaps before and after ``c``, fitted and held out, in µm and in noise units, with
     the held-out likelihood gain in all and by fold."""
-    c["gap_before_um"] = base["gap"]["gap_um"]
-    c["gap_after_um"] = c["gap"]["gap_um"]
-    c["heldout_gap_before_um"] = base["heldout"]["gap_um"]
-    c["heldout_gap_after_um"] = c["heldout"]["gap_um"]
-    # folds the linear leave-out step did not hold for (refitted), and why a held-out
-    # gap is missing, if it is
-    c["heldout_refitted_folds"] = c["heldout"].get("refitted_folds")
-    c["heldout_unverified_folds"] = c["heldout"].get("unverified_folds")
-    c["heldout_error"] = c["heldout"].get("error")
-    c["heldout_delta_nll"] = heldout_dnll(base["heldout"], c["heldout"])
-    c["heldout_by_fold"], c["heldout_set_aside"] = heldout_by_fold(base, c, fold_names)
+    out = dict(gap_before_um=base.gap["gap_um"], gap_after_um=c.gap["gap_um"],
+               heldout_gap_before_um=base.heldout["gap_um"], heldout_gap_after_um=c.heldout["gap_um"],
+               # folds the linear leave-out step did not hold for (refitted), and why a
+               # held-out gap is missing, if it is
+               heldout_refitted_folds=c.heldout.get("refitted_folds"),
+               heldout_unverified_folds=c.heldout.get("unverified_folds"),
+               heldout_error=c.heldout.get("error"),
+               heldout_delta_nll=heldout_dnll(base.heldout, c.heldout))
+    out["heldout_by_fold"], out["heldout_set_aside"] = heldout_by_fold(base, c.but(**out), fold_names)
     # the same gaps in noise units (1: at the noise)
-    for key, before, after in (("gap_sigma", base["gap"], c["gap"]),
-                               ("heldout_gap_sigma", base["heldout"], c["heldout"])):
-        c[key + "_before"], c[key + "_after"] = before.get("gap_sigma"), after.get("gap_sigma")
+    for key, before, after in (("gap_sigma", base.gap, c.gap), ("heldout_gap_sigma", base.heldout, c.heldout)):
+        out[key + "_before"], out[key + "_after"] = before.get("gap_sigma"), after.get("gap_sigma")
+    return out
 
 
-def _score_confounding(c: dict, base: dict, eff) -> None:
+def _score_confounding(c: CandidateResult, base: CandidateResult, eff) -> dict:
     """How much of ``c`` the model's own parameters can mimic (R²), its Wald distance from
     its null, and so whether it is confounded with them, and with which."""
-    conf = c.get("confounding") or {}
+    conf = c.confounding or {}
     r2 = max((v.get("r2", 0.0) for v in conf.values()), default=0.0)
     if any(v.get("confounded") for v in conf.values()):
         r2 = max(r2, 1.0)
-    c["r2_with_model"] = float(r2) if np.isfinite(r2) else None
     partners = sorted({p["parameter"] for v in conf.values() for p in v.get("partners", [])})
     # confounded: the model's parameters can mimic it (R² > 0.99) and, with them free,
     # it is not determined away from its null (a strongly correlated but well-measured
     # parameter, like A against μmin, is not confounded)
     z = _wald(c, eff)
-    c["wald_z"] = z
+    out = dict(r2_with_model=float(r2) if np.isfinite(r2) else None, wald_z=z)
     if np.isfinite(r2) and r2 > CONFOUNDED_R2 and not z >= WALD_Z:
-        # no partner listed: no information on it at all, so every model parameter is one
-        c["confounded_with"] = partners or [n for n in base.get("free", []) if n not in eff.parameters]
-        c["mimicked"] = True  # by the model's own parameters (not a tie with another candidate)
+        # no partner listed: no information on it at all, so every model parameter is one;
+        # mimicked: by the model's own parameters (not a tie with another candidate)
+        out.update(confounded_with=partners or [n for n in (base.free or []) if n not in eff.parameters],
+                   mimicked=True)
     else:
-        c["confounded_with"] = []
-        c["mimicked"] = False
+        out.update(confounded_with=[], mimicked=False)
+    return out
 
 
-def _score_closing(c: dict, base: dict, eff, opts) -> None:
+def _score_closing(c: CandidateResult, base: CandidateResult, eff, opts) -> CandidateResult:
     """The residual change, the estimates' text, and how much of the gap ``c`` closes
     (:func:`closes_gap`), the held-out gap read against the encoding's floor."""
-    c["dr"] = c["r"] - base["r"]
-    c["estimate_text"] = ", ".join(
-        f"{n} = {estimate_text(c['estimates'][n])}" for n in (eff.parameters if eff.nested else c.get("free", []))
-        if n in c["estimates"])
-    c["named"] = False
-    c["closed_fraction"] = closed_fraction(c)
+    names = eff.parameters if eff.nested else (c.free or [])
+    c = c.but(dr=c.r - base.r, named=False,
+              estimate_text=", ".join(f"{n} = {estimate_text(c.estimates[n])}" for n in names if n in c.estimates))
+    c = c.but(closed_fraction=closed_fraction(c))
     # the held-out gap at the encoding's floor (as the verdict's tolerance reads it)
-    noise = base["gap"].get("noise_um", 0.0)
-    c["heldout_gap_ratio_before"] = float(c["heldout_gap_before_um"] / noise) if noise > 0 else float("nan")
-    c["at_floor"] = bool(c["heldout_gap_ratio_before"] <= opts.gap_tolerance)
-    c["explained_share"] = explained_share(c, base)
-    c["closes"] = closes_gap(c)
+    noise = base.gap.get("noise_um", 0.0)
+    ratio = float(c.heldout_gap_before_um / noise) if noise > 0 else float("nan")
+    c = c.but(heldout_gap_ratio_before=ratio, at_floor=bool(ratio <= opts.gap_tolerance),
+              explained_share=explained_share(c, base))
+    return c.but(closes=closes_gap(c))
 
 
-def _note(c: dict) -> str:
+def _note(c: CandidateResult) -> str:
     """The report's note on a scored candidate: its estimates, and what stopped, failed or
     went missing on the way."""
-    note = c["estimate_text"]
-    stopped = (f"refit stopped after {c.get('iterations')} iterations in all: even {GIVE_UP_MARGIN:g}× the "
+    note = c.estimate_text
+    stopped = (f"refit stopped after {c.iterations} iterations in all: even {GIVE_UP_MARGIN:g}× the "
                "gain its solver still promised could not make it significant; its Δnll is a lower "
-               "bound, the p-value an upper bound") if c.get("status") == GAVE_UP else ""
+               "bound, the p-value an upper bound") if c.status == GAVE_UP else ""
     if stopped:
         note += f" ({stopped})"
-    if c["heldout_error"]:
-        note += f" (no held-out gap: {c['heldout_error']})"
-    elif c.get("heldout_unverified_folds"):
-        note += (f" (held-out gap: {c['heldout_unverified_folds']} fold(s) from the linear "
+    if c.heldout_error:
+        note += f" (no held-out gap: {c.heldout_error})"
+    elif c.heldout_unverified_folds:
+        note += (f" (held-out gap: {c.heldout_unverified_folds} fold(s) from the linear "
                  "leave-out step, which the model did not confirm there; their refit failed)")
-    if c.get("status") == NOT_DIFFERENTIABLE:
+    if c.status == NOT_DIFFERENTIABLE:
         note = ("the refit could not start: where it began, the last bit of a parameter moves the "
                 "residuals by more than their noise (the model is not differentiable there); no "
-                "evidence; the values at its start: " + c["estimate_text"])
-    elif c.get("worse"):
+                "evidence; the values at its start: " + c.estimate_text)
+    elif c.worse:
         note = ("the refit ended worse than the current model (a local solution): no evidence; "
                 if not stopped else f"worse than the current model when its {stopped}: no evidence; "
-                ) + c["estimate_text"]
+                ) + c.estimate_text
     return note
 
 
-def _judge_magnitude_again(m: dict, base: dict, c: dict) -> None:
+def judge_magnitude_again(m: dict, base: CandidateResult, c: CandidateResult) -> dict:
     """The check at the realistic magnitude ``m`` of ``c`` judged again against the best fit
     this round found: the current model re-solved here, or the refit itself (the worker
-    knew only last round's χ²)."""
+    knew only last round's χ²). A new check (``m`` as it is where there is nothing to judge)."""
     if not ((m.get("absorbed") or m.get("better")) and np.isfinite(m.get("chi2", float("nan")))):
-        return
-    ref = min(base["chi2"], c["chi2"])
+        return m
+    m = dict(m)
+    ref = min(base.chi2, c.chi2)
     m["delta_nll"] = 0.5 * (m["chi2"] - ref)
     if m["delta_nll"] > m["needed_delta_nll"]:
         m.update(absorbed=False, better=False, partners=[], lower_bound=False)
@@ -180,10 +178,11 @@ def _judge_magnitude_again(m: dict, base: dict, c: dict) -> None:
         # better only against the worker's reference: within the quantile of
         # this round's best, so the check's own verdict (moves only: the
         # standard errors there were not computed for a better fit)
-        for x in m.get("moved", []):
-            x["partner"] = bool(abs(x["z"]) >= MAGNITUDE_MOVED_Z)
-        m.update(absorbed=True, better=False,
-                 partners=[x["parameter"] for x in m.get("moved", []) if x["partner"]])
+        moved = [dict(x, partner=bool(abs(x["z"]) >= MAGNITUDE_MOVED_Z)) for x in m.get("moved", [])]
+        if "moved" in m:
+            m["moved"] = moved
+        m.update(absorbed=True, better=False, partners=[x["parameter"] for x in moved if x["partner"]])
+    return m
 
 
 def _magnitude_text(m: dict) -> str:
@@ -249,10 +248,10 @@ def heldout_by_fold(base: dict, c: dict, fold_names=None):
     gain held out on 7 runs (2.96e5 held out against 1.45e5 fitted); on the 2.13 N/m,
     20 µN, 300 Hz run its fitted χ² falls from 1.25e5 to 440 but its held-out χ² is 9.1e5,
     so the sum over all runs kept only 2.4e4 of 2.1e5."""
-    ho_b, ho_c = base["heldout"], c["heldout"]
+    ho_b, ho_c = base.heldout, c.heldout
     keys = ("chi2_by_fold", "fitted_chi2_by_fold", "rows_by_fold")
     if (any(k not in ho_b or k not in ho_c for k in keys) or ho_b["rows_by_fold"] != ho_c["rows_by_fold"]
-            or not np.isfinite(c.get("heldout_delta_nll", float("nan")))):
+            or not np.isfinite(_or(c.heldout_delta_nll, float("nan")))):
         return [], None
     h = 0.5 * (np.asarray(ho_b["chi2_by_fold"]) - np.asarray(ho_c["chi2_by_fold"]))
     g = 0.5 * (np.asarray(ho_b["fitted_chi2_by_fold"]) - np.asarray(ho_c["fitted_chi2_by_fold"]))
@@ -274,7 +273,7 @@ def heldout_by_fold(base: dict, c: dict, fold_names=None):
              heldout_gap_after_um=float(without(ho_c, "gap_um_without_fold")),
              noise_um=float(without(ho_b, "noise_um_without_fold")))
     a["closed_fraction"] = closed_share(a["heldout_gap_before_um"], a["heldout_gap_after_um"], a["noise_um"])
-    a["explained_share"] = explained_share(dict(delta_nll=a["fitted_delta_nll_kept"]), base)
+    a["explained_share"] = explained_share(CandidateResult(delta_nll=a["fitted_delta_nll_kept"]), base)
     return by_fold, a
 
 
@@ -283,9 +282,9 @@ def _wald(c, eff) -> float:
     if not eff.nested:
         return float("nan")
     z = 0.0
-    nulls = c.get("nulls") or {}
+    nulls = c.nulls or {}
     for n in eff.defining:
-        e = c["estimates"].get(n)
+        e = c.estimates.get(n)
         if not e or not e.get("stderr") or n not in nulls:
             continue
         z = max(z, abs(e["value"] - float(nulls[n])) / e["stderr"])
@@ -301,7 +300,7 @@ def estimate_text(e: dict) -> str:
 
 def closed_fraction(c) -> float:
     """Share of the held-out gap above the noise floor that the candidate closes."""
-    return closed_share(c["heldout_gap_before_um"], c["heldout_gap_after_um"], c.get("gap", {}).get("noise_um", 0.0))
+    return closed_share(c.heldout_gap_before_um, c.heldout_gap_after_um, (c.gap or {}).get("noise_um", 0.0))
 
 
 def closed_share(before_um: float, after_um: float, noise_um: float) -> float:
@@ -313,8 +312,8 @@ def closed_share(before_um: float, after_um: float, noise_um: float) -> float:
 
 
 def evidence_of(c) -> str:
-    p = c.get("p_value")
-    return f"p = {p:.2g}" if p is not None else f"ΔAIC = {c.get('delta_aic', float('nan')):.1f}"
+    p = c.p_value
+    return f"p = {p:.2g}" if p is not None else f"ΔAIC = {_or(c.delta_aic, float('nan')):.1f}"
 
 
 def explained_share(c, base) -> float:
@@ -322,15 +321,15 @@ def explained_share(c, base) -> float:
     removes on the fitted runs. The excess is taken as at least EXCESS_FLOOR standard
     deviations of a χ² with those degrees of freedom: near an adequate model the excess is
     mostly chance, and a small significant gain would be a large share of it."""
-    dof = max(base["n_obs"] - base["n_eff"], 1)
-    excess = max(base["chi2"] - dof, EXCESS_FLOOR * math.sqrt(2 * dof))
-    return float(2 * c["delta_nll"] / excess)
+    dof = max(base.n_obs - base.n_eff, 1)
+    excess = max(base.chi2 - dof, EXCESS_FLOOR * math.sqrt(2 * dof))
+    return float(2 * c.delta_nll / excess)
 
 
 def closes_gap(c) -> bool:
     """Whether a candidate closes a real part of the gap, not only a formal one: at least
     MIN_CLOSED of the held-out µm gap above the noise; or, where that gap sits at the
-    encoding's own floor (within ``gap_tolerance`` of the noise: ``c["at_floor"]``), at
+    encoding's own floor (within ``gap_tolerance`` of the noise: ``c.at_floor``), at
     least MIN_CLOSED of the current model's excess χ² on the fitted runs with at least
     HELDOUT_SHARE of that likelihood gain kept on the held-out runs. Either on all runs,
     or on all but the one run that argues most against the candidate
@@ -349,14 +348,14 @@ def closes_gap(c) -> bool:
 def closing_route(c):
     """How the candidate closes the gap (:func:`closes_gap`): "gap", "likelihood", "gap
     without one run", "likelihood without one run", or None."""
-    if c.get("closed_fraction", 0.0) >= MIN_CLOSED:
+    if _or(c.closed_fraction, 0.0) >= MIN_CLOSED:
         return "gap"
-    own = c.get("own_sequence") or {}
+    own = c.own_sequence or {}
     if own.get("changed") and not own.get("error") and own.get("closed_fraction", 0.0) >= MIN_CLOSED:
         return "gap on its own mode sequence"
-    at_floor = c.get("at_floor", False)
-    if at_floor and _likelihood_closes(c.get("explained_share", 0.0), c.get("heldout_delta_nll", float("nan")),
-                                       c["delta_nll"]):
+    at_floor = _or(c.at_floor, False)
+    if at_floor and _likelihood_closes(_or(c.explained_share, 0.0), _or(c.heldout_delta_nll, float("nan")),
+                                       c.delta_nll):
         return "likelihood"
     a = set_aside_usable(c)
     if a and a.get("closed_fraction", 0.0) >= MIN_CLOSED:
@@ -378,7 +377,12 @@ def set_aside_usable(c):
     held-out runs are predicted better in all (measured on the out-of-library set at
     d54fbfe: the spring nonlinearity kept 4611 of 7365 without the 10 Hz run, −4997 over
     all runs, and was named)."""
-    a = c.get("heldout_set_aside")
-    if a and a["fitted_delta_nll_kept"] > 0 and c.get("heldout_delta_nll", float("nan")) > 0:
+    a = c.heldout_set_aside
+    if a and a["fitted_delta_nll_kept"] > 0 and _or(c.heldout_delta_nll, float("nan")) > 0:
         return a
     return None
+
+
+def _or(x, default):
+    """``x``, or ``default`` where the record has none (a field at None)."""
+    return default if x is None else x

@@ -9,6 +9,7 @@ import numpy as np
 from scipy import stats
 
 from identify.diagnosis.candidates import STALLED, CandidateTask, run_candidate
+from identify.diagnosis.records import CandidateResult
 from identify.diagnosis.scores import (
     HELDOUT_SHARE,
     MAX_RIVALS,
@@ -23,63 +24,73 @@ from identify.diagnosis.tasks import candidate_starts
 from identify.model.effects import get_effect
 
 
-def select_named(scored, base, retry=None):
-    """The candidate to add, and a confounded group when the best cannot be told apart.
+def select_named(scored: list, base, retry=None) -> tuple:
+    """The candidate to add, a confounded group when the best cannot be told apart, and the
+    round's candidates as the selection leaves them (their notes, and a candidate measured
+    on its own mode sequence): (chosen or None, group or None, scored).
     ``retry`` (:func:`identify.diagnosis.rounds._own_sequence`) measures a candidate that fits much better but does
     not close the gap on the current mode sequence on the sequence it decides itself
-    (:func:`worth_own_sequence`), before a weaker one is tried."""
-    ok = [c for c in scored if c.get("ok") and c.get("significant")]
-    for c in ok:
-        if c["confounded_with"] and not c.get("confounded_beside"):
-            c["note"] = (f"confounded with {', '.join(c['confounded_with'])} (R² = {c['r2_with_model']:.3f}): "
-                         "the model's own parameters mimic it; " + c["estimate_text"])
-    names = [c for c in ok if not c["confounded_with"]]
-    if not names:
-        return None, None
-    names.sort(key=lambda c: c["delta_aic"])
+    (:func:`worth_own_sequence`), before a weaker one is tried: it returns the candidate
+    with its ``own_sequence``."""
+    scored = put(scored, [c.but(note=f"confounded with {', '.join(c.confounded_with)} (R² = {c.r2_with_model:.3f}): "
+                                    "the model's own parameters mimic it; " + c.estimate_text)
+                          for c in scored if c.ok and c.significant and c.confounded_with
+                          and not c.confounded_beside])
+    names = [c for c in scored if c.ok and c.significant and not c.confounded_with]
+    names.sort(key=lambda c: c.delta_aic)
     for k, best in enumerate(names):
-        chosen, group = try_named(best, names[k + 1:])
+        chosen, group, changed = try_named(best, names[k + 1:])
         if chosen is None and group is None and retry is not None and worth_own_sequence(best):
-            retry(best)  # records best["own_sequence"] and judges it again
-            best["closes"] = closes_gap(best)
-            chosen, group = try_named(best, names[k + 1:])
+            best = retry(best)  # best with its own_sequence, judged again
+            best = best.but(closes=closes_gap(best))
+            chosen, group, changed = try_named(best, names[k + 1:])
+            changed = [best] + changed
+        scored = put(scored, changed)
         if chosen is not None or group is not None:
-            return chosen, group
-        if best.get("closes") and not converged(best):
+            return chosen, group, scored
+        if best.closes and not converged(best):
             # a better candidate that would close the gap could not be judged: naming a
             # weaker one risks the wrong name. Measured (spring nonlinearity at β = 3e8,
             # 3a37f1b): its refit closed 93 % of the held-out gap but ended
             # Line_Search_Failed, and a load offset closing 38 % was named in its place
-            for c in names[k + 1:]:
-                if c.get("closes"):
-                    c["note"] = (f"not tried for a name: {best['effect']} fits better and would close the gap, "
-                                 "but its refit did not converge; " + c["estimate_text"])
-            return None, None
-    return None, None
+            scored = put(scored, [c.but(note=f"not tried for a name: {best.effect} fits better and would close the "
+                                             "gap, but its refit did not converge; " + c.estimate_text)
+                                  for c in names[k + 1:] if c.closes])
+            return None, None, scored
+    return None, None, scored
 
 
-def choose_named(scored, base, check, retry=None):
-    """:func:`select_named`, then ``check`` (:func:`refit_beside`) on its choice: a choice the check
-    demotes (it returns the confounded group) gives way to the next :func:`select_named` picks.
-    The chosen candidate (or None) and every confounded group found on the way."""
+def choose_named(scored: list, base, check, retry=None) -> tuple:
+    """:func:`select_named`, then ``check`` (:func:`refit_beside`: the candidate as checked,
+    and a confounded group if the check demotes it) on its choice: a choice the check
+    demotes gives way to the next :func:`select_named` picks. The chosen candidate (or
+    None), every confounded group found on the way, and the round's candidates as the
+    selection leaves them."""
     groups = []
-    chosen, group = select_named(scored, base, retry)
+    chosen, group, scored = select_named(scored, base, retry)
     while True:
         if group:
             groups.append(group)
         if chosen is None:
-            return None, groups
-        group = check(chosen)
+            return None, groups, scored
+        chosen, group = check(chosen)
+        scored = put(scored, [chosen])
         if group is None:
-            return chosen, groups
+            return chosen, groups, scored
         groups.append(group)
-        chosen, group = select_named(scored, base, retry)
+        chosen, group, scored = select_named(scored, base, retry)
+
+
+def put(records: list, new: list) -> list:
+    """``records`` with each of ``new`` in place of the record of its effect."""
+    by = {c.effect: c for c in new}
+    return [by.get(c.effect, c) for c in records]
 
 
 def gap_ratio(c) -> float:
     """A measured model's held-out gap over its noise floor (NaN when either is missing)."""
-    noise = (c.get("gap") or {}).get("noise_um", float("nan"))
-    return (c.get("heldout") or {}).get("gap_um", float("nan")) / noise if noise and noise > 0 else float("nan")
+    noise = (c.gap or {}).get("noise_um", float("nan"))
+    return (c.heldout or {}).get("gap_um", float("nan")) / noise if noise and noise > 0 else float("nan")
 
 
 def at_noise(c, opts) -> bool:
@@ -91,17 +102,16 @@ def at_noise(c, opts) -> bool:
 def _rivals(chosen, scored) -> list:
     """Significant candidates that fit better than ``chosen`` but cannot be named because
     the model's own parameters mimic them (nested ones: the test below needs a p-value)."""
-    out = [c for c in scored if c is not chosen and c.get("ok") and c.get("significant")
-           and c.get("mimicked") and c.get("p_value") is not None
-           and c["delta_aic"] < chosen["delta_aic"]]
-    return sorted(out, key=lambda c: c["delta_aic"])[:MAX_RIVALS]
+    out = [c for c in scored if c.effect != chosen.effect and c.ok and c.significant
+           and c.mimicked and c.p_value is not None and c.delta_aic < chosen.delta_aic]
+    return sorted(out, key=lambda c: c.delta_aic)[:MAX_RIVALS]
 
 
 def refit_beside(chosen, scored, base, current, runs, fopts, opts, threads, executor, where_hint, n_cand, say):
     """``chosen`` refitted beside each better-fitting candidate the model mimics
-    (:func:`_rivals`): None when it stays significant beside every one (it explains
-    something of its own), else the confounded group it forms with the first it does
-    not (and ``chosen`` is no longer nameable).
+    (:func:`_rivals`): ``chosen`` with these checks (``beside``), and None when it stays
+    significant beside every one (it explains something of its own), else the confounded
+    group it forms with the first it does not (and ``chosen`` is no longer nameable).
 
     Why: such a rival is significant, yet the baseline's parameters can absorb it, so
     forward selection never adds it and a weaker candidate that picks up part of the
@@ -110,58 +120,60 @@ def refit_beside(chosen, scored, base, current, runs, fopts, opts, threads, exec
     significant (ΔAIC −32.7) but confounded with μmax, μmin, τ, and a load offset of
     −40 ± 12 nN (ΔAIC −27.1; the data have none) was named; their residual changes were
     not parallel (cosine 0.57), so the tie rule of :func:`try_named` did not apply."""
-    eff = get_effect(chosen["effect"])
+    eff = get_effect(chosen.effect)
     if not eff.nested:
-        return None  # another aging law is judged by ΔAIC against the current law, not nested
-    own = {n: chosen["values"][n] for n in eff.parameters if n in chosen.get("values", {})}
+        return chosen, None  # another aging law is judged by ΔAIC against the current law, not nested
+    own = {n: chosen.values[n] for n in eff.parameters if n in (chosen.values or {})}
+    beside = list(chosen.beside or [])
     for rival in _rivals(chosen, scored):
-        reff = get_effect(rival["effect"])
-        nulls = eff.null_values(rival["values"])
-        free = tuple(rival["free"])
+        reff = get_effect(rival.effect)
+        nulls = eff.null_values(rival.values)
+        free = tuple(rival.free)
         # one basin: its own estimates, the null or its nudges, and the leading ripple's
         # starts for the topography, whichever fits best at the start
         starts = [dict(own)] + [s for s in candidate_starts(eff, nulls, where_hint) if not s.get("_basin")]
         task = CandidateTask(
-            effect=chosen["effect"], runs=runs, law=rival["law"], values={**rival["values"], **nulls}, free=free,
+            effect=chosen.effect, runs=runs, law=rival.law, values={**rival.values, **nulls}, free=free,
             extra=tuple(n for n in eff.parameters if n not in free),
             bounds={**current.get("bounds", {}), **dict(reff.bounds), **dict(eff.bounds)},
-            starts=starts, nulls=nulls, w_tail=np.asarray(rival["w"])[len(free):],
-            ev_M=rival["ev_M"], options=fopts, folds=[], max_iter=opts.max_iter, threads=threads,
-            null_chi2=rival["chi2"], null_n_eff=rival["n_eff"], screen_p=opts.alpha)
-        say(f"  {chosen['effect']} refitted beside {rival['effect']} (which fits better but the model mimics)")
+            starts=starts, nulls=nulls, w_tail=np.asarray(rival.w)[len(free):],
+            ev_M=rival.ev_M, options=fopts, folds=[], max_iter=opts.max_iter, threads=threads,
+            null_chi2=rival.chi2, null_n_eff=rival.n_eff, screen_p=opts.alpha)
+        say(f"  {chosen.effect} refitted beside {rival.effect} (which fits better but the model mimics)")
         try:
-            res = executor.submit(run_candidate, task).result()
+            res = CandidateResult.from_dict(executor.submit(run_candidate, task).result())
         except Exception as err:  # a lost worker: the check failed
-            res = dict(ok=False, status=f"failed: {err}")
-        check = dict(effect=rival["effect"], status=res.get("status"))
-        if res.get("ok"):
-            dnll = 0.5 * (rival["chi2"] - res["chi2"])
-            dk = res["n_eff"] - rival["n_eff"]
+            res = CandidateResult(ok=False, status=f"failed: {err}")
+        check = dict(effect=rival.effect, status=res.status)
+        if res.ok:
+            dnll = 0.5 * (rival.chi2 - res.chi2)
+            dk = res.n_eff - rival.n_eff
             p = float(stats.chi2.sf(max(2 * dnll, 0.0), dk)) if dk > 0 else 1.0
-            dbic = -2 * dnll + dk * math.log(max(base["n_obs"], 2))
+            dbic = -2 * dnll + dk * math.log(max(base.n_obs, 2))
             check.update(delta_nll=float(dnll), p_value=p,
                          significant=bool(p < opts.alpha / max(n_cand, 1) and dbic < 0))
-        chosen.setdefault("beside", []).append(check)
+        beside.append(check)
+        chosen = chosen.but(beside=beside)
         if "p_value" not in check:
             # no evidence either way: the candidate keeps the name its own tests give it
-            chosen["note"] = (chosen.get("note", "")
-                              + f" (not checked beside {rival['effect']}: the refit failed, {check['status']})")
+            chosen = chosen.but(note=(chosen.note or "")
+                                + f" (not checked beside {rival.effect}: the refit failed, {check['status']})")
             continue
         if check["significant"]:
             continue
         why = f"p = {check['p_value']:.2g}, Δnll {check['delta_nll']:.1f}, with both freed"
-        chosen["confounded_with"] = [rival["effect"]]
-        chosen["confounded_beside"] = rival["effect"]  # (not the model's parameters: select_named's note)
-        chosen["note"] = (f"significant alone, but not beside {rival['effect']}, which fits better and the model's "
-                          f"own parameters mimic: {why}; " + chosen["estimate_text"])
-        return dict(effects=[rival["effect"], chosen["effect"]], closes=bool(chosen.get("closes")),
-                    why=(f"{chosen['effect']} explains nothing beyond {rival['effect']} ({why}), which the "
-                         f"model's own parameters mimic ({', '.join(rival['confounded_with'])})"))
-    return None
+        # confounded_beside: with another candidate, not the model's parameters (select_named's note)
+        chosen = chosen.but(confounded_with=[rival.effect], confounded_beside=rival.effect,
+                            note=(f"significant alone, but not beside {rival.effect}, which fits better and the "
+                                  f"model's own parameters mimic: {why}; " + chosen.estimate_text))
+        return chosen, dict(effects=[rival.effect, chosen.effect], closes=bool(chosen.closes),
+                            why=(f"{chosen.effect} explains nothing beyond {rival.effect} ({why}), which the "
+                                 f"model's own parameters mimic ({', '.join(rival.confounded_with)})"))
+    return chosen, None
 
 
 def converged(c) -> bool:
-    return str(c.get("status", "")).startswith(("Solve_Succeeded", STALLED))
+    return str(c.status if c.status is not None else "").startswith(("Solve_Succeeded", STALLED))
 
 
 def undetermined(c) -> bool:
@@ -180,12 +192,12 @@ def undetermined(c) -> bool:
 
 def interval_text(c):
     """Why ``c`` is undetermined (:func:`undetermined`), or None when it is not."""
-    if not c.get("effect"):
+    if not c.effect:
         return None
-    eff = get_effect(c["effect"])
+    eff = get_effect(c.effect)
     if not eff.nested:
         return None  # another law: judged by ΔAIC, no null to exclude
-    nulls, est = c.get("nulls") or {}, c.get("estimates") or {}
+    nulls, est = c.nulls or {}, c.estimates or {}
     held, missing = [], []
     for n in eff.defining:
         if n not in nulls:
@@ -212,8 +224,8 @@ def worth_own_sequence(c) -> bool:
     of the current model's excess χ² on the fitted runs — it explains much of the misfit,
     yet predicts the held-out runs little better, the mark of a sequence bent to the
     current model."""
-    return bool(converged(c) and not c.get("closes") and not c.get("at_floor", False)
-                and c.get("explained_share", 0.0) >= MIN_CLOSED and "own_sequence" not in c
+    return bool(converged(c) and not c.closes and not c.at_floor
+                and (c.explained_share or 0.0) >= MIN_CLOSED and c.own_sequence is None
                 and not undetermined(c))
 
 
@@ -235,68 +247,84 @@ def own_text(own: dict) -> str:
             f"held-out gap {own['heldout_gap_after_um'] * 1e3:.1f} nm{against}")
 
 
-def try_named(best, others):
-    """``best`` if it can be named; a confounded group if another explains the same; else None."""
+def try_named(best, others) -> tuple:
+    """``best`` if it can be named; a confounded group if another explains the same; else
+    None: (named or None, group or None, the candidates with what was decided of them)."""
     why = interval_text(best)
     if why is not None:  # (before the ties: an undetermined candidate confounds nothing)
-        best["undetermined"] = True
-        best["note"] = (f"significant by the likelihood ratio, but its own 95 % interval does not exclude its null "
-                        f"({why}): not determined, so not named; " + best["estimate_text"])
-        return None, None
+        best = best.but(undetermined=True,
+                        note=(f"significant by the likelihood ratio, but its own 95 % interval does not exclude its "
+                              f"null ({why}): not determined, so not named; " + best.estimate_text))
+        return None, None, [best]
     ties = []
     for c in others:
         if undetermined(c):
             continue
-        a, b = best["dr"], c["dr"]
+        a, b = best.dr, c.dr
         cos = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300))
-        if abs(c["delta_aic"] - best["delta_aic"]) < TIE_AIC and cos > SAME_RESIDUALS:
+        if abs(c.delta_aic - best.delta_aic) < TIE_AIC and cos > SAME_RESIDUALS:
             ties.append((c, cos))
     if ties:
-        grp = [best["effect"]] + [c["effect"] for c, _ in ties]
+        grp = [best.effect] + [c.effect for c, _ in ties]
+        changed = []
         for c in [best] + [t for t, _ in ties]:
-            c["confounded_with"] = [e for e in grp if e != c["effect"]]
-            c["note"] = "confounded with " + ", ".join(c["confounded_with"]) + "; " + c["estimate_text"]
+            partners = [e for e in grp if e != c.effect]
+            changed.append(c.but(confounded_with=partners,
+                                 note="confounded with " + ", ".join(partners) + "; " + c.estimate_text))
         why = ("they change the residuals alike (cosine " + ", ".join(f"{cos:.2f}" for _, cos in ties)
                + ") and fit equally well (|ΔΔAIC| < 10)")
-        closes = any(c.get("closes") for c in [best] + [t for t, _ in ties])
-        return None, dict(effects=grp, why=why, closes=bool(closes))
+        closes = any(c.closes for c in [best] + [t for t, _ in ties])
+        return None, dict(effects=grp, why=why, closes=bool(closes)), changed
     if not converged(best):
-        best["note"] = f"significant but its refit did not converge ({best['status']}); " + best["estimate_text"]
-        return None, None
+        best = best.but(note=f"significant but its refit did not converge ({best.status}); " + best.estimate_text)
+        return None, None, [best]
+    if not best.closes:
+        return None, None, [best.but(note=_not_closing_note(best))]
+    best = best.but(note=_added_note(best))
+    return best, None, [best]
+
+
+def _not_closing_note(best) -> str:
+    """Why ``best``, significant, is not named: it closes too little of the gap."""
     a = set_aside_usable(best)
-    if not best.get("closes"):
-        share, ho = best.get("explained_share", 0.0), best.get("heldout_delta_nll", float("nan"))
-        um = f"closes {100 * max(best.get('closed_fraction', 0.0), 0):.0f} % of the held-out gap above the noise"
-        if a:
-            um += f" ({100 * max(a['closed_fraction'], 0):.0f} % without the run {', '.join(a['runs'])})"
-        own = best.get("own_sequence")
-        if own:
-            um += f" ({own_text(own)})"
-        if not best.get("at_floor", False):
-            why = (f"the likelihood test does not apply: the held-out gap is {best['heldout_gap_ratio_before']:.2g}× "
-                   f"the noise, above the encoding's own floor (needs {100 * MIN_CLOSED:.0f} % of the gap)")
-        else:
-            why = (f"removes {100 * max(share, 0):.0f} % of the excess χ²" if share < MIN_CLOSED else
-                   f"keeps {ho:.1f} of its Δnll {best['delta_nll']:.1f} on held-out runs" if np.isfinite(ho) else
-                   "has no held-out Δnll")
-            if a and share >= MIN_CLOSED:
-                why += (f"; without the run {', '.join(a['runs'])} it removes "
-                        f"{100 * max(a['explained_share'], 0):.0f} % and keeps {a['heldout_delta_nll_kept']:.1f} of "
-                        f"{a['fitted_delta_nll_kept']:.1f}")
-            why += (f" (needs {100 * MIN_CLOSED:.0f} % of either, the second with {100 * HELDOUT_SHARE:.0f} % of its "
-                    "gain held out, on all runs or all but one)")
-        best["note"] = f"significant, but {um}; {why}; " + best["estimate_text"]
-        return None, None
-    best["note"] = "added; " + best["estimate_text"]
-    if closing_route(best) == "gap on its own mode sequence":
-        best["note"] += (f" (closes {100 * max(best['closed_fraction'], 0):.0f} % of the held-out gap on the "
-                         f"current model's mode sequence; {own_text(best['own_sequence'])})")
-    if closing_route(best) in ("gap without one run", "likelihood without one run"):
+    share = best.explained_share if best.explained_share is not None else 0.0
+    ho = best.heldout_delta_nll if best.heldout_delta_nll is not None else float("nan")
+    closed = best.closed_fraction if best.closed_fraction is not None else 0.0
+    um = f"closes {100 * max(closed, 0):.0f} % of the held-out gap above the noise"
+    if a:
+        um += f" ({100 * max(a['closed_fraction'], 0):.0f} % without the run {', '.join(a['runs'])})"
+    if best.own_sequence:
+        um += f" ({own_text(best.own_sequence)})"
+    if not best.at_floor:
+        why = (f"the likelihood test does not apply: the held-out gap is {best.heldout_gap_ratio_before:.2g}× "
+               f"the noise, above the encoding's own floor (needs {100 * MIN_CLOSED:.0f} % of the gap)")
+    else:
+        why = (f"removes {100 * max(share, 0):.0f} % of the excess χ²" if share < MIN_CLOSED else
+               f"keeps {ho:.1f} of its Δnll {best.delta_nll:.1f} on held-out runs" if np.isfinite(ho) else
+               "has no held-out Δnll")
+        if a and share >= MIN_CLOSED:
+            why += (f"; without the run {', '.join(a['runs'])} it removes "
+                    f"{100 * max(a['explained_share'], 0):.0f} % and keeps {a['heldout_delta_nll_kept']:.1f} of "
+                    f"{a['fitted_delta_nll_kept']:.1f}")
+        why += (f" (needs {100 * MIN_CLOSED:.0f} % of either, the second with {100 * HELDOUT_SHARE:.0f} % of its "
+                "gain held out, on all runs or all but one)")
+    return f"significant, but {um}; {why}; " + best.estimate_text
+
+
+def _added_note(best) -> str:
+    """The note of a candidate named: how it closes the gap where that is not plain."""
+    note = "added; " + best.estimate_text
+    route = closing_route(best)
+    if route == "gap on its own mode sequence":
+        note += (f" (closes {100 * max(best.closed_fraction, 0):.0f} % of the held-out gap on the "
+                 f"current model's mode sequence; {own_text(best.own_sequence)})")
+    if route in ("gap without one run", "likelihood without one run"):
         # named on all runs but one: say which, and what the held-out figures are without it
+        a = set_aside_usable(best)
         gaps = (f", held-out gap {a['heldout_gap_before_um'] * 1e3:.1f} -> {a['heldout_gap_after_um'] * 1e3:.1f} nm"
                 if np.isfinite(a["heldout_gap_before_um"]) and np.isfinite(a["heldout_gap_after_um"]) else "")
-        best["note"] += (f" (held out on every run but {', '.join(a['runs'])}, which it fits better but cannot "
-                         f"predict once it is left out: held-out Δnll {a['heldout_delta_nll']:.1f} against "
-                         f"{a['fitted_delta_nll']:.1f} fitted; on the others {a['heldout_delta_nll_kept']:.1f} held "
-                         f"out against {a['fitted_delta_nll_kept']:.1f} fitted{gaps})")
-    return best, None
+        note += (f" (held out on every run but {', '.join(a['runs'])}, which it fits better but cannot "
+                 f"predict once it is left out: held-out Δnll {a['heldout_delta_nll']:.1f} against "
+                 f"{a['fitted_delta_nll']:.1f} fitted; on the others {a['heldout_delta_nll_kept']:.1f} held "
+                 f"out against {a['fitted_delta_nll_kept']:.1f} fitted{gaps})")
+    return note

@@ -8,11 +8,15 @@ import math
 import numpy as np
 
 from identify.diagnosis.candidates import CandidateTask
+from identify.diagnosis.records import CandidateResult
 from identify.model.effects import get_effect
 
 
-def rank_tasks(c):
-    return (0 if c.get("ok") else 1, c.get("delta_aic", math.inf) if c.get("ok") else 0)
+def rank_tasks(c: CandidateResult):
+    """The order of a round's candidates: refitted ones by ΔAIC, best first, then the rest."""
+    if not c.ok:
+        return (1, 0)
+    return (0, math.inf if c.delta_aic is None else c.delta_aic)
 
 
 def candidate_tasks(ids, current, runs, fopts, folds, opts, threads, where_hint, regime_runs=(), at_magnitude=None):
@@ -31,8 +35,9 @@ def candidate_tasks(ids, current, runs, fopts, folds, opts, threads, where_hint,
         eff = get_effect(eid)
         why = eff.applicable(tuple(current["free"]), current["law"])
         if why:
-            skipped.append(dict(effect=eid, ok=False, reason=f"not applicable: {why}", status="not applicable",
-                                parameters=list(eff.parameters), note=f"not applicable: {why}"))
+            skipped.append(CandidateResult(effect=eid, ok=False, reason=f"not applicable: {why}",
+                                           status="not applicable", parameters=list(eff.parameters),
+                                           note=f"not applicable: {why}"))
             continue
         if eff.law is not None:
             from identify.model.laws import get_law

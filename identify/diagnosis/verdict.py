@@ -23,20 +23,20 @@ def verdict(st, where_final: list, regime_final) -> tuple[str, float]:
     # is formally significant but closes little is the encoding's own misfit, not evidence.
     # (the final round's record of the named model itself has effect None: not a candidate)
     # (nor is one whose estimate its own interval does not tell from the null: no evidence)
-    still = [c for c in (st.rounds[-1] if st.rounds else []) if c.get("effect") is not None
-             and c.get("significant") and not c.get("named") and c.get("effect") not in st.effects
-             and not c.get("confounded_with") and not c.get("undetermined")
-             and (c.get("closes") or c.get("heldout_error"))]
+    still = [c for c in (st.rounds[-1] if st.rounds else []) if c.effect is not None
+             and c.significant and not c.named and c.effect not in st.effects
+             and not c.confounded_with and not c.undetermined and (c.closes or c.heldout_error)]
     grouped = {e for g in st.confounded if g.get("closes") for e in g["effects"]}
-    ratio = gap_ratio(final_res) if final_res and final_res.get("ok") else float("nan")
-    within = at_noise(final_res, opts) if final_res and final_res.get("ok") else False
+    measured = final_res is not None and final_res.ok
+    ratio = gap_ratio(final_res) if measured else float("nan")
+    within = at_noise(final_res, opts) if measured else False
     # within the tolerance there is no gap left for an unnamed candidate to explain
     if (within or (not misfit_left and not still and not grouped)) and not regime_left:
         if misfit_left or still:
             notes.append(f"adequate: the held-out gap is {ratio:.2f}× the noise floor (tolerance "
                          f"{opts.gap_tolerance:g}×, the encoding's own error on model-made data), though "
                          + ", ".join([f"{m.feature} ({m.misfit_sigma:.1f} σ)" for m in misfit_left]
-                                     + [f"candidate {c['effect']} ({evidence_of(c)})" for c in still])
+                                     + [f"candidate {c.effect} ({evidence_of(c)})" for c in still])
                          + " are significant")
         return "adequate", ratio
     if misfit_left:
@@ -44,7 +44,7 @@ def verdict(st, where_final: list, regime_final) -> tuple[str, float]:
                      + ", ".join(f"{m.feature} ({m.misfit_sigma:.1f} σ)" for m in misfit_left))
     if still:
         notes.append("significant but not named: " + ", ".join(
-            f"{c['effect']} ({c['note']})" for c in still))
+            f"{c.effect} ({c.note})" for c in still))
     if grouped:
         notes.append("the gap is closed by candidates the data cannot tell apart: "
                      + "; ".join(" | ".join(g["effects"]) for g in st.confounded))
@@ -58,9 +58,9 @@ def final_record(st, ok: bool, ratio: float, profile: dict | None) -> dict:
     final_res, current = st.final_res, st.current
     final = dict(law=current["law"], free=list(current["free"]),
                  values={n: current["values"][n] for n in current["free"]},
-                 gap_um=final_res["gap"]["gap_um"] if ok else float("nan"),
-                 heldout_gap_um=final_res["heldout"]["gap_um"] if ok else float("nan"),
-                 noise_um=final_res["gap"]["noise_um"] if ok else float("nan"))
+                 gap_um=final_res.gap["gap_um"] if ok else float("nan"),
+                 heldout_gap_um=final_res.heldout["gap_um"] if ok else float("nan"),
+                 noise_um=final_res.gap["noise_um"] if ok else float("nan"))
     final["heldout_gap_ratio"] = float(ratio)
     if profile is not None and profile.get("named"):
         # named by its profile: the runs fitted at its best point; held out, the runs left

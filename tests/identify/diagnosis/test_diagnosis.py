@@ -11,6 +11,7 @@ import identify
 from identify.cli import main
 from identify.diagnosis.features import Layout, feature_values, gap
 from identify.diagnosis.heldout import exact_fold, folds_of, heldout_residuals
+from identify.diagnosis.records import CandidateResult as Rec
 from identify.diagnosis.result import DiagnosisOptions
 from identify.diagnosis.rounds import diagnose
 from identify.diagnosis.where import misfit_sigma, where
@@ -474,27 +475,26 @@ def test_a_stalled_refit_can_be_named_an_unconverged_one_cannot(status, named):
     from identify.diagnosis.scores import closed_fraction, closes_gap
     from identify.diagnosis.selection import try_named
 
-    best = dict(effect="spring_nonlinearity", dr=np.ones(3), delta_aic=-14176.0, status=status,
-                estimate_text="beta = 9.8e8", gap=dict(noise_um=0.02), heldout_gap_before_um=0.097,
-                heldout_gap_after_um=0.021)
-    best["closed_fraction"] = closed_fraction(best)
-    best["closes"] = closes_gap(best)
-    chosen, group = try_named(best, [])
-    assert (chosen is best) is named and group is None
+    best = Rec(effect="spring_nonlinearity", dr=np.ones(3), delta_aic=-14176.0, status=status,
+               estimate_text="beta = 9.8e8", gap=dict(noise_um=0.02), heldout_gap_before_um=0.097,
+               heldout_gap_after_um=0.021)
+    best = best.but(closed_fraction=closed_fraction(best))
+    best = best.but(closes=closes_gap(best))
+    chosen, group, (judged,) = try_named(best, [])
+    assert (chosen is judged) is named and group is None and judged.effect == best.effect
     if not named:
-        assert "did not converge" in best["note"]
+        assert "did not converge" in judged.note
 
 
 def _cand(dnll, ho_dnll, ho_before=0.0205, ho_after=0.0212, noise=0.0150):
     from identify.diagnosis.scores import closed_fraction, explained_share
 
-    base = dict(chi2=11098.4, n_obs=10769, n_eff=27)  # measured: A = 0.0045 data, baseline A = 0
-    c = dict(delta_nll=dnll, heldout_delta_nll=ho_dnll, gap=dict(noise_um=noise), heldout_gap_before_um=ho_before,
-             heldout_gap_after_um=ho_after)
-    c["closed_fraction"], c["explained_share"] = closed_fraction(c), explained_share(c, base)
-    c["heldout_gap_ratio_before"] = ho_before / noise
-    c["at_floor"] = c["heldout_gap_ratio_before"] <= 1.5  # DiagnosisOptions.gap_tolerance
-    return c
+    base = Rec(chi2=11098.4, n_obs=10769, n_eff=27)  # measured: A = 0.0045 data, baseline A = 0
+    c = Rec(delta_nll=dnll, heldout_delta_nll=ho_dnll, gap=dict(noise_um=noise), heldout_gap_before_um=ho_before,
+            heldout_gap_after_um=ho_after)
+    c = c.but(closed_fraction=closed_fraction(c), explained_share=explained_share(c, base),
+              heldout_gap_ratio_before=ho_before / noise)
+    return c.but(at_floor=c.heldout_gap_ratio_before <= 1.5)  # DiagnosisOptions.gap_tolerance
 
 
 def test_a_gap_at_the_encodings_floor_is_closed_by_the_likelihood():
@@ -505,7 +505,7 @@ def test_a_gap_at_the_encodings_floor_is_closed_by_the_likelihood():
 
     vs = _cand(119.5, 142.5)
     # excess χ² 356 over 10742 dof, floored at 3 chance σ (440)
-    assert vs["closed_fraction"] <= 0 and vs["explained_share"] == pytest.approx(239.0 / 439.7, abs=0.01)
+    assert vs.closed_fraction <= 0 and vs.explained_share == pytest.approx(239.0 / 439.7, abs=0.01)
     assert closes_gap(vs)
     assert not closes_gap(_cand(119.5, 30.0))  # an in-sample gain the held-out runs do not share
     assert not closes_gap(_cand(119.5, float("nan")))
@@ -615,13 +615,13 @@ def test_the_likelihood_test_is_wired_into_naming_and_says_what_failed():
 
     for c, named, why in ((_cand(119.5, 142.5), True, None), (_cand(119.5, 30.0), False, "keeps 30.0 of its"),
                           (_cand(20.0, 20.0), False, "removes 9 % of the excess")):
-        c.update(effect="velocity_strengthening", dr=np.ones(3), delta_aic=-2 * c["delta_nll"] + 2,
-                 status="Solve_Succeeded", estimate_text="A = 0.0046")
-        c["closes"] = closes_gap(c)
-        chosen, group = try_named(c, [])
-        assert (chosen is c) is named and group is None
+        c = c.but(effect="velocity_strengthening", dr=np.ones(3), delta_aic=-2 * c.delta_nll + 2,
+                  status="Solve_Succeeded", estimate_text="A = 0.0046")
+        c = c.but(closes=closes_gap(c))
+        chosen, group, (judged,) = try_named(c, [])
+        assert (chosen is judged) is named and group is None
         if why:
-            assert why in c["note"], c["note"]
+            assert why in judged.note, judged.note
 
 
 def _drift_folds(g, h, ho_total=None, names=None, without=0.3, base_chi2=424_000.0, at_floor=False,
@@ -633,19 +633,17 @@ def _drift_folds(g, h, ho_total=None, names=None, without=0.3, base_chi2=424_000
     g, h = np.asarray(g, float), np.asarray(h, float)
     n = len(g)
     # measured base: drift data at scale 1, the baseline's χ² (7c7f030)
-    base = dict(chi2=base_chi2, n_obs=600, n_eff=30,
-                heldout=dict(chi2_by_fold=list(2 * h), fitted_chi2_by_fold=list(2 * g), rows_by_fold=[50] * n,
-                             gap_um_without_fold=[without] * n, noise_um_without_fold=[0.02] * n))
-    c = dict(delta_nll=float(g.sum()), heldout_delta_nll=float(h.sum()) if ho_total is None else ho_total,
-             gap=dict(noise_um=0.02), heldout_gap_before_um=0.336, heldout_gap_after_um=0.321,
-             heldout=dict(chi2_by_fold=[0.0] * n, fitted_chi2_by_fold=[0.0] * n, rows_by_fold=[50] * n,
-                          gap_um_without_fold=[without_after] * n, noise_um_without_fold=[0.02] * n))
-    c["closed_fraction"], c["explained_share"] = closed_fraction(c), explained_share(c, base)
-    c["heldout_gap_ratio_before"] = c["heldout_gap_before_um"] / 0.02
-    c["at_floor"] = at_floor
-    c["heldout_by_fold"], c["heldout_set_aside"] = heldout_by_fold(
-        base, c, names if names is not None else [[f"run{k}"] for k in range(n)])
-    return c
+    base = Rec(chi2=base_chi2, n_obs=600, n_eff=30,
+               heldout=dict(chi2_by_fold=list(2 * h), fitted_chi2_by_fold=list(2 * g), rows_by_fold=[50] * n,
+                            gap_um_without_fold=[without] * n, noise_um_without_fold=[0.02] * n))
+    c = Rec(delta_nll=float(g.sum()), heldout_delta_nll=float(h.sum()) if ho_total is None else ho_total,
+            gap=dict(noise_um=0.02), heldout_gap_before_um=0.336, heldout_gap_after_um=0.321,
+            heldout=dict(chi2_by_fold=[0.0] * n, fitted_chi2_by_fold=[0.0] * n, rows_by_fold=[50] * n,
+                         gap_um_without_fold=[without_after] * n, noise_um_without_fold=[0.02] * n))
+    c = c.but(closed_fraction=closed_fraction(c), explained_share=explained_share(c, base),
+              heldout_gap_ratio_before=c.heldout_gap_before_um / 0.02, at_floor=at_floor)
+    by_fold, set_aside = heldout_by_fold(base, c, names if names is not None else [[f"run{k}"] for k in range(n)])
+    return c.but(heldout_by_fold=by_fold, heldout_set_aside=set_aside)
 
 
 # measured per fold (7c7f030): drift at 5e-8 m/s, the refit right, fold 3's prediction failing
@@ -658,15 +656,15 @@ def test_one_run_whose_prediction_fails_does_not_veto_an_effect_the_others_confi
     from identify.diagnosis.selection import try_named
 
     c = _drift_folds(DRIFT_G, DRIFT_H)
-    assert c["heldout_delta_nll"] == pytest.approx(24138, abs=1)  # 12 % of the fitted gain: the sum fails
-    a = c["heldout_set_aside"]
+    assert c.heldout_delta_nll == pytest.approx(24138, abs=1)  # 12 % of the fitted gain: the sum fails
+    a = c.heldout_set_aside
     assert a["runs"] == ["run3"] and a["heldout_delta_nll_kept"] == pytest.approx(295948, abs=1)
     assert a["fitted_delta_nll_kept"] == pytest.approx(145400, abs=1)
     assert closes_gap(c)
-    c.update(effect="drift", dr=np.ones(3), delta_aic=-415000.0, status="Solve_Succeeded", estimate_text="r_d",
-             closes=True)
-    chosen, _ = try_named(c, [])
-    assert chosen is c and "every run but run3" in c["note"] and "300.0 -> 50.0 nm" in c["note"]
+    c = c.but(effect="drift", dr=np.ones(3), delta_aic=-415000.0, status="Solve_Succeeded", estimate_text="r_d",
+              closes=True)
+    chosen, _, _ = try_named(c, [])
+    assert chosen is not None and "every run but run3" in chosen.note and "300.0 -> 50.0 nm" in chosen.note
 
 
 def test_a_gain_that_lies_in_the_one_run_set_aside_is_not_named():
@@ -678,22 +676,23 @@ def test_a_gain_that_lies_in_the_one_run_set_aside_is_not_named():
 
     overfit = _drift_folds([10, 10, 10, 200_000, 10, 10, 10, 10], [5, 5, 5, 1000, 5, 5, 5, 5],
                            at_floor=True, without_after=0.3)
-    assert overfit["heldout_set_aside"]["runs"] == ["run3"] and not closes_gap(overfit)
-    overfit.update(effect="topography", dr=np.ones(3), delta_aic=-4e5, status="Solve_Succeeded", estimate_text="a",
-                   closes=False)
-    assert try_named(overfit, [])[0] is None
-    assert "(0 % without the run run3)" in overfit["note"] and "without the run run3 it removes 0 %" in overfit["note"]
+    assert overfit.heldout_set_aside["runs"] == ["run3"] and not closes_gap(overfit)
+    overfit = overfit.but(effect="topography", dr=np.ones(3), delta_aic=-4e5, status="Solve_Succeeded",
+                          estimate_text="a", closes=False)
+    chosen, _, (overfit,) = try_named(overfit, [])
+    assert chosen is None
+    assert "(0 % without the run run3)" in overfit.note and "without the run run3 it removes 0 %" in overfit.note
     two = list(DRIFT_H)
     two[4] = -300_000  # a second run failing as badly
     assert not closes_gap(_drift_folds(DRIFT_G, two))
     # with fewer than five runs none is set aside: the rest would be too few to decide
     few = _drift_folds(DRIFT_G[:4], DRIFT_H[:4])
-    assert few["heldout_set_aside"] is None and not closes_gap(few)
+    assert few.heldout_set_aside is None and not closes_gap(few)
     # nor a fold of several runs (k-fold)
     kfold = _drift_folds(DRIFT_G, DRIFT_H, names=[["a", "b"]] + [[f"run{k}"] for k in range(1, 8)])
-    assert kfold["heldout_set_aside"] is None and not closes_gap(kfold)
+    assert kfold.heldout_set_aside is None and not closes_gap(kfold)
     # a held-out gain that cannot be compared (different rows) sets nothing aside
-    assert _drift_folds(DRIFT_G, DRIFT_H, ho_total=float("nan"))["heldout_set_aside"] is None
+    assert _drift_folds(DRIFT_G, DRIFT_H, ho_total=float("nan")).heldout_set_aside is None
 
 
 def test_a_run_the_candidate_fits_worse_is_never_set_aside():
@@ -703,7 +702,7 @@ def test_a_run_the_candidate_fits_worse_is_never_set_aside():
     from identify.diagnosis.scores import closes_gap
 
     c = _drift_folds([2e4] * 7 + [-5e4], [1.5e4] * 7 + [-2e5])
-    assert c["heldout_delta_nll"] < 0 and c["heldout_set_aside"] is None and not closes_gap(c)
+    assert c.heldout_delta_nll < 0 and c.heldout_set_aside is None and not closes_gap(c)
 
 
 def test_the_note_of_a_run_set_aside_without_its_gaps():
@@ -712,9 +711,10 @@ def test_the_note_of_a_run_set_aside_without_its_gaps():
 
     # no µm gaps without the run: named by the likelihood on the others (a gap at the floor)
     c = _drift_folds(DRIFT_G, DRIFT_H, without=float("nan"), at_floor=True)
-    c.update(effect="drift", dr=np.ones(3), delta_aic=-4e5, status="Solve_Succeeded", estimate_text="r_d",
-             closes=closes_gap(c))
-    assert try_named(c, [])[0] is c and "nan" not in c["note"] and "every run but run3" in c["note"]
+    c = c.but(effect="drift", dr=np.ones(3), delta_aic=-4e5, status="Solve_Succeeded", estimate_text="r_d",
+              closes=closes_gap(c))
+    chosen = try_named(c, [])[0]
+    assert chosen is not None and "nan" not in chosen.note and "every run but run3" in chosen.note
 
 
 def test_the_per_fold_chi2_of_k_folds():
@@ -738,9 +738,9 @@ def test_score_sets_a_run_aside_from_the_workers_per_fold_chi2():
     drift_ho = [722.2, 2315.7, 22.9, 907343.1, 420.4, 5208.9, 99.0, 56.2]
 
     def res(effect, fit, ho, n_eff):
-        return dict(effect=effect, ok=True, status="Solve_Succeeded", iterations=10, chi2=sum(fit), n_obs=578,
-                    n_eff=n_eff, r=np.zeros(3), free=["mu_max"], estimates=dict(drift_rate=dict(value=4.94e-8,
-                    stderr=3.3e-10)), nulls=dict(drift_rate=0.0), confounding={},
+        return Rec(effect=effect, ok=True, status="Solve_Succeeded", iterations=10, chi2=sum(fit), n_obs=578,
+                   n_eff=n_eff, r=np.zeros(3), free=["mu_max"], estimates=dict(drift_rate=dict(value=4.94e-8,
+                   stderr=3.3e-10)), nulls=dict(drift_rate=0.0), confounding={},
                     gap=dict(gap_um=0.2, noise_um=0.02, gap_sigma=10.0),
                     heldout=dict(gap_um=0.336, gap_sigma=15.0, chi2=sum(ho), n_rows=578, chi2_by_fold=ho,
                                  fitted_chi2_by_fold=fit, rows_by_fold=[71, 65, 33, 19, 13, 207, 109, 61],
@@ -748,12 +748,12 @@ def test_score_sets_a_run_aside_from_the_workers_per_fold_chi2():
 
     base = res(None, base_fit, base_ho, 30)
     cand = res("drift", drift_fit, drift_ho, 31)
-    cand["heldout"]["gap_um"], cand["heldout"]["gap_um_without_fold"] = 0.321, [0.05] * 8
+    cand.heldout["gap_um"], cand.heldout["gap_um_without_fold"] = 0.321, [0.05] * 8
     names = [[f"run{k}"] for k in range(8)]
     (c,) = score_round([base, cand], base, DiagnosisOptions(), 1, fold_names=names)
-    assert c["heldout_set_aside"]["runs"] == ["run3"] and c["closes"]
-    assert c["heldout_delta_nll"] == pytest.approx(0.5 * (sum(base_ho) - sum(drift_ho)))
-    assert try_named(c, [])[0] is c
+    assert c.heldout_set_aside["runs"] == ["run3"] and c.closes
+    assert c.heldout_delta_nll == pytest.approx(0.5 * (sum(base_ho) - sum(drift_ho)))
+    assert try_named(c, [])[0] is not None
     from identify.diagnosis.result import CANDIDATE_KEYS
 
     assert {"heldout_by_fold", "heldout_set_aside"} <= set(CANDIDATE_KEYS)
@@ -768,8 +768,8 @@ def test_held_out_gain_and_excess_share_edge_cases():
     assert np.isnan(heldout_dnll(dict(chi2=1000.0, n_rows=334, unverified_folds=1), a))  # contradicted
     assert np.isnan(heldout_dnll(dict(gap_um=float("nan")), a))  # not computed
     # a model at the noise: the share is of the chance spread, not of a near-zero excess
-    base = dict(chi2=10742.0 + 5.0, n_obs=10769, n_eff=27)
-    assert explained_share(dict(delta_nll=6.0), base) == pytest.approx(12.0 / (3 * np.sqrt(2 * 10742)))
+    base = Rec(chi2=10742.0 + 5.0, n_obs=10769, n_eff=27)
+    assert explained_share(Rec(delta_nll=6.0), base) == pytest.approx(12.0 / (3 * np.sqrt(2 * 10742)))
 
 
 @pytest.fixture(scope="module")
@@ -791,10 +791,10 @@ def test_a_named_effect_ends_the_diagnosis_without_measuring_it_twice(offset_bas
     assert res.effects == ["load_offset"], res.report()
     c = res.candidates[0]
     assert not any("deciding the mode sequence again" in m for m in said)
-    assert c["named"] and res.timing["refits"] == 2  # the baseline and the candidate, once each
-    assert len(res.rounds) == 2 and [x for x in res.rounds[1] if x.get("effect")] == []
-    assert res.final["heldout_gap_um"] == c["heldout_gap_after_um"] < c["heldout_gap_before_um"]
-    assert res.final["values"]["load_offset"] == pytest.approx(c["estimates"]["load_offset"]["value"])
+    assert c.named and res.timing["refits"] == 2  # the baseline and the candidate, once each
+    assert len(res.rounds) == 2 and res.rounds[1].candidates == () and res.rounds[0].chosen == "load_offset"
+    assert res.final["heldout_gap_um"] == c.heldout_gap_after_um < c.heldout_gap_before_um
+    assert res.final["values"]["load_offset"] == pytest.approx(c.estimates["load_offset"]["value"])
     assert "round 2" in res.report()
     # the final round's record of the named model is no candidate left unexplained
     assert not any("candidate None" in n or "significant but not named" in n for n in res.notes), res.notes
@@ -829,9 +829,9 @@ def test_auto_resequencing_only_while_the_named_model_misfits(offset_baseline):
     from identify.diagnosis.selection import at_noise
 
     opts = DiagnosisOptions()
-    assert at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.029)), opts)
-    assert not at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.031)), opts)
-    assert not at_noise(dict(gap=dict(noise_um=0.02), heldout=dict(gap_um=float("nan"))), opts)
+    assert at_noise(Rec(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.029)), opts)
+    assert not at_noise(Rec(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.031)), opts)
+    assert not at_noise(Rec(gap=dict(noise_um=0.02), heldout=dict(gap_um=float("nan"))), opts)
     # named there with its held-out gap at 1.68× the noise (four short runs)
     for tol, again in ((2.0, False), (1.5, True)):
         said = []
@@ -850,10 +850,10 @@ def test_a_candidate_that_predicts_the_held_out_runs_worse_in_all_is_not_named()
     g = [1000.0, 1200.0, 800.0, 1500.0, 1238.4, 900.0, 900.0, 1064.8]
     h = [700.0, 700.0, 500.0, 900.0, -9608.7, 600.0, 600.0, 611.4]
     c = _drift_folds(g, h, base_chi2=40_570.0)  # an excess the gains are a real share of
-    a = c["heldout_set_aside"]
-    assert c["explained_share"] > 0.3 and a["explained_share"] > 0.3 and a["heldout_delta_nll_kept"] > 0.5 * 7364.8
+    a = c.heldout_set_aside
+    assert c.explained_share > 0.3 and a["explained_share"] > 0.3 and a["heldout_delta_nll_kept"] > 0.5 * 7364.8
     assert a["runs"] == ["run4"] and a["heldout_delta_nll_kept"] == pytest.approx(4611.4)
-    assert a["fitted_delta_nll_kept"] == pytest.approx(7364.8) and c["heldout_delta_nll"] < 0
+    assert a["fitted_delta_nll_kept"] == pytest.approx(7364.8) and c.heldout_delta_nll < 0
     assert not closes_gap(c)
 
 
@@ -876,9 +876,9 @@ def test_a_sequence_decided_again_is_measured_in_a_final_round(offset_baseline, 
                    options=DiagnosisOptions(effects=("load_offset",), resequence=True))
     assert res.effects == ["load_offset"] and new_runs
     assert res.timing["refits"] == 3 and len(res.rounds) == 2
-    final = res.rounds[-1][0]
-    assert final["effect"] is None and final is not res.candidates[0]
-    assert res.final["heldout_gap_um"] == final["heldout"]["gap_um"]
+    final = res.rounds[-1].current
+    assert final.effect is None and final is not res.candidates[0] and res.rounds[-1].candidates == ()
+    assert res.final["heldout_gap_um"] == final.heldout["gap_um"]
     assert all(a is b for a, b in zip(res.final_problem.runs, new_runs))
 
 
@@ -904,10 +904,11 @@ def test_away_from_the_encodings_floor_only_the_gap_in_um_names():
     from identify.diagnosis.selection import try_named
 
     off = _cand(5275.8, 8375.5, ho_before=0.0922, ho_after=0.0899, noise=0.0190)
-    assert not off["at_floor"] and off["explained_share"] > 0.3 and not closes_gap(off)
-    off.update(effect="load_offset", dr=np.ones(3), delta_aic=-10549.5, status="Solve_Succeeded",
-               estimate_text="load_offset = 7.2e-07", closes=False)
-    assert try_named(off, [])[0] is None and "the likelihood test does not apply" in off["note"], off["note"]
+    assert not off.at_floor and off.explained_share > 0.3 and not closes_gap(off)
+    off = off.but(effect="load_offset", dr=np.ones(3), delta_aic=-10549.5, status="Solve_Succeeded",
+                  estimate_text="load_offset = 7.2e-07", closes=False)
+    chosen, _, (off,) = try_named(off, [])
+    assert chosen is None and "the likelihood test does not apply" in off.note, off.note
     # the same gains with the gap at the floor: named by the likelihood
     assert closes_gap(_cand(5275.8, 8375.5, ho_before=0.0205, ho_after=0.0212, noise=0.0150))
 
@@ -920,24 +921,24 @@ def test_a_weaker_candidate_is_not_named_while_a_better_one_could_not_be_judged(
     from identify.diagnosis.selection import select_named
 
     def cand(effect, daic, status, closes):
-        return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic, status=status,
-                    closes=closes, closed_fraction=0.93 if closes else 0.0, explained_share=1.0,
-                    heldout_delta_nll=100.0, delta_nll=50.0, estimate_text=effect, dr=np.eye(2)[len(effect) % 2],
-                    at_floor=False, heldout_gap_ratio_before=2.0)
+        return Rec(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic, status=status,
+                   closes=closes, closed_fraction=0.93 if closes else 0.0, explained_share=1.0,
+                   heldout_delta_nll=100.0, delta_nll=50.0, estimate_text=effect, dr=np.eye(2)[len(effect) % 2],
+                   at_floor=False, heldout_gap_ratio_before=2.0)
 
     beta = cand("spring_nonlinearity", -1700.6, "Line_Search_Failed", True)
     off = cand("load_offset", -500.0, "Solve_Succeeded", True)
-    assert select_named([beta, off], {}) == (None, None)
-    assert "did not converge" in beta["note"] and "not tried for a name: spring_nonlinearity" in off["note"]
+    chosen, group, (beta, off) = select_named([beta, off], {})
+    assert chosen is None and group is None
+    assert "did not converge" in beta.note and "not tried for a name: spring_nonlinearity" in off.note
     # the better one converged but closes nothing: the next is named
     beta = cand("spring_nonlinearity", -1700.6, "Solve_Succeeded", False)
-    beta["heldout_gap_ratio_before"] = 2.0
     off = cand("load_offset", -500.0, "Solve_Succeeded", True)
-    assert select_named([beta, off], {})[0] is off
+    assert select_named([beta, off], {})[0].effect == "load_offset"
     # the better one did not converge and closes nothing: the next is named too
     beta = cand("spring_nonlinearity", -1700.6, "Maximum_Iterations_Exceeded", False)
     off = cand("load_offset", -500.0, "Solve_Succeeded", True)
-    assert select_named([beta, off], {})[0] is off
+    assert select_named([beta, off], {})[0].effect == "load_offset"
 
 
 def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_the_model_mimics(monkeypatch):
@@ -948,12 +949,12 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
     import identify.diagnosis.selection as dg  # (where refit_beside runs its refits)
 
     def cand(effect, daic, confounded):
-        return dict(effect=effect, ok=True, significant=True, confounded_with=confounded, delta_aic=daic,
-                    p_value=1e-8, status="Solve_Succeeded", closes=True, estimate_text=effect, chi2=1000.0 + daic,
-                    r2_with_model=1.0 if confounded else 0.2, mimicked=bool(confounded),
-                    n_eff=5 if confounded else 4, free=["mu_max", "mu_min", "tau"] + (["A"] if confounded else []),
-                    values={"mu_max": 0.8, "mu_min": 0.5, "tau": 0.07, "A": 0.0017, "load_offset": 0.0},
-                    law="exponential", w=np.zeros(8), ev_M=np.zeros(2))
+        return Rec(effect=effect, ok=True, significant=True, confounded_with=confounded, delta_aic=daic,
+                   p_value=1e-8, status="Solve_Succeeded", closes=True, estimate_text=effect, chi2=1000.0 + daic,
+                   r2_with_model=1.0 if confounded else 0.2, mimicked=bool(confounded),
+                   n_eff=5 if confounded else 4, free=["mu_max", "mu_min", "tau"] + (["A"] if confounded else []),
+                   values={"mu_max": 0.8, "mu_min": 0.5, "tau": 0.07, "A": 0.0017, "load_offset": 0.0},
+                   law="exponential", w=np.zeros(8), ev_M=np.zeros(2))
 
     seen = []
 
@@ -976,69 +977,72 @@ def test_a_candidate_is_named_only_if_it_stays_significant_beside_a_better_one_t
         vs = cand("velocity_strengthening", -32.7, ["mu_max", "mu_min", "tau"])
         off = cand("load_offset", -27.1, [])
         monkeypatch.setattr(dg, "run_candidate", refit(gain))
-        group = dg.refit_beside(off, [vs, off], dict(n_obs=5000), {}, [], identify.FitOptions(), DiagnosisOptions(),
-                                1, Now(), [], 14, lambda m: None)
+        off, group = dg.refit_beside(off, [vs, off], Rec(n_obs=5000), {}, [], identify.FitOptions(),
+                                     DiagnosisOptions(), 1, Now(), [], 14, lambda m: None)
         return group, off, vs
 
     group, off, vs = check(gain=1.0)  # beside A, the offset gains one likelihood unit
     task = seen[-1]
     assert task.effect == "load_offset" and "A" in task.free and task.extra == ("load_offset",)
-    assert task.null_chi2 == vs["chi2"] and task.folds == []
+    assert task.null_chi2 == vs.chi2 and task.folds == []
     assert {"load_offset": 0.0} in task.starts  # (its own estimate in the test's values)
-    assert group["effects"] == ["velocity_strengthening", "load_offset"] and off["confounded_with"] == [
+    assert group["effects"] == ["velocity_strengthening", "load_offset"] and off.confounded_with == [
         "velocity_strengthening"]
-    assert "not beside velocity_strengthening" in off["note"] and off["beside"][0]["significant"] is False
-    assert dg.select_named([vs, off], {}) == (None, None)  # and the selection names nothing
-    assert "not beside velocity_strengthening" in off["note"] and "mimic it" in vs["note"]
+    assert "not beside velocity_strengthening" in off.note and off.beside[0]["significant"] is False
+    chosen, group, (vs, off) = dg.select_named([vs, off], {})
+    assert chosen is None and group is None  # and the selection names nothing
+    assert "not beside velocity_strengthening" in off.note and "mimic it" in vs.note
     group, off, _ = check(gain=40.0)  # something of its own beyond A: nameable
-    assert group is None and off["confounded_with"] == [] and off["beside"][0]["significant"] is True
+    assert group is None and off.confounded_with == [] and off.beside[0]["significant"] is True
     group, off, _ = check(gain=None)  # the check failed: no evidence, the name stands
-    assert group is None and off["confounded_with"] == [] and "not checked beside" in off["note"]
+    assert group is None and off.confounded_with == [] and "not checked beside" in off.note
 
     def beside(c, scored):
-        return dg.refit_beside(c, scored, dict(n_obs=5000), {}, [], identify.FitOptions(), DiagnosisOptions(), 1,
+        return dg.refit_beside(c, scored, Rec(n_obs=5000), {}, [], identify.FitOptions(), DiagnosisOptions(), 1,
                                Now(), [], 14, lambda m: None)
 
     n = len(seen)
     # a rival that fits worse is no reason to refit
     vs, off = cand("velocity_strengthening", -20.0, ["mu_max"]), cand("load_offset", -27.1, [])
-    assert beside(off, [vs, off]) is None and len(seen) == n
+    assert beside(off, [vs, off]) == (off, None) and len(seen) == n
     # nor is another aging law (judged by ΔAIC, not nested), when it is the one chosen
     vs, law = cand("velocity_strengthening", -40.0, ["mu_max"]), cand("aging_logistic", -27.1, [])
-    assert beside(law, [vs, law]) is None and len(seen) == n
+    assert beside(law, [vs, law]) == (law, None) and len(seen) == n
     # a candidate demoted beside another (or tied with one) is no rival: the model does not mimic it
     vs, off, drift = (cand("velocity_strengthening", -40.0, ["mu_max"]), cand("load_offset", -30.0, []),
                       cand("drift", -27.1, []))
     monkeypatch.setattr(dg, "run_candidate", refit(1.0))
-    assert beside(off, [vs, off, drift])["effects"] == ["velocity_strengthening", "load_offset"]
-    assert off["mimicked"] is False and dg._rivals(drift, [vs, off, drift]) == [vs]
+    assert beside(off, [vs, off, drift])[1]["effects"] == ["velocity_strengthening", "load_offset"]
+    assert off.mimicked is False and dg._rivals(drift, [vs, off, drift]) == [vs]
 
 
 def test_a_choice_demoted_beside_a_rival_gives_way_to_the_next():
     from identify.diagnosis.selection import choose_named
 
     def cand(effect, daic):
-        return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
-                    status="Solve_Succeeded", closes=True, closed_fraction=0.9, explained_share=1.0,
-                    heldout_delta_nll=10.0, delta_nll=10.0, estimate_text=effect, dr=np.eye(3)[len(effect) % 3],
-                    at_floor=True, heldout_gap_ratio_before=1.2)
+        return Rec(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
+                   status="Solve_Succeeded", closes=True, closed_fraction=0.9, explained_share=1.0,
+                   heldout_delta_nll=10.0, delta_nll=10.0, estimate_text=effect, dr=np.eye(3)[len(effect) % 3],
+                   at_floor=True, heldout_gap_ratio_before=1.2)
 
     off, drift = cand("load_offset", -30.0), cand("drift", -20.0)
     asked = []
 
     def check(c):
-        asked.append(c["effect"])
-        if c is off:  # demoted
-            c["confounded_with"], c["confounded_beside"] = ["velocity_strengthening"], "velocity_strengthening"
-            return dict(effects=["velocity_strengthening", "load_offset"], why="w", closes=True)
-        return None
+        asked.append(c.effect)
+        if c.effect == "load_offset":  # demoted
+            return (c.but(confounded_with=["velocity_strengthening"], confounded_beside="velocity_strengthening"),
+                    dict(effects=["velocity_strengthening", "load_offset"], why="w", closes=True))
+        return c, None
 
-    chosen, groups = choose_named([off, drift], {}, check)
-    assert chosen is drift and asked == ["load_offset", "drift"]
+    chosen, groups, scored = choose_named([off, drift], {}, check)
+    assert chosen.effect == "drift" and chosen is scored[1] and asked == ["load_offset", "drift"]
+    assert scored[0].confounded_beside == "velocity_strengthening"
     assert [g["effects"] for g in groups] == [["velocity_strengthening", "load_offset"]]
     off, drift = cand("load_offset", -30.0), cand("drift", -20.0)
-    assert choose_named([off, drift], {}, lambda c: None) == (off, [])
-    assert choose_named([], {}, check) == (None, [])
+    chosen, groups, _ = choose_named([off, drift], {}, lambda c: (c, None))
+    assert chosen.effect == "load_offset" and chosen.note == "added; load_offset" and groups == []
+    assert choose_named([], {}, check) == (None, [], [])
 
 
 def test_a_candidate_that_explains_much_but_closes_little_is_judged_on_its_own_mode_sequence():
@@ -1049,39 +1053,42 @@ def test_a_candidate_that_explains_much_but_closes_little_is_judged_on_its_own_m
     from identify.diagnosis.selection import choose_named, select_named
 
     def cand(effect, daic, closed, share):
-        return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
-                    status="Solve_Succeeded", closes=closed >= 0.3, closed_fraction=closed, explained_share=share,
-                    heldout_delta_nll=100.0, delta_nll=50.0, estimate_text=effect, dr=np.eye(3)[len(effect) % 3],
-                    at_floor=False, heldout_gap_ratio_before=7.0)
+        return Rec(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
+                   status="Solve_Succeeded", closes=closed >= 0.3, closed_fraction=closed, explained_share=share,
+                   heldout_delta_nll=100.0, delta_nll=50.0, estimate_text=effect, dr=np.eye(3)[len(effect) % 3],
+                   at_floor=False, heldout_gap_ratio_before=7.0)
 
     asked = []
 
     def retry(closed):
         def run(c):
-            asked.append(c["effect"])
-            c["own_sequence"] = dict(changed=True, triggers_moved=40, slips_inserted=3, slips_removed=1,
-                                     heldout_gap_before_um=0.172, heldout_gap_after_um=0.05, closed_fraction=closed)
+            asked.append(c.effect)
+            return c.but(own_sequence=dict(changed=True, triggers_moved=40, slips_inserted=3, slips_removed=1,
+                                           heldout_gap_before_um=0.172, heldout_gap_after_um=0.05,
+                                           closed_fraction=closed))
         return run
 
     law, off = cand("aging_logarithmic", -28000.0, 0.28, 0.5), cand("load_offset", -30.0, 0.4, 0.5)
-    chosen, groups = choose_named([law, off], {}, lambda c: None, retry(0.75))
+    chosen, groups, (law, off) = choose_named([law, off], {}, lambda c: (c, None), retry(0.75))
     assert chosen is law and groups == [] and asked == ["aging_logarithmic"]
-    assert "on the mode sequence it decides (40 trigger(s) moved" in law["note"] and "closes 75 %" in law["note"]
-    assert law["closes"] is True
+    assert "on the mode sequence it decides (40 trigger(s) moved" in law.note and "closes 75 %" in law.note
+    assert law.closes is True
     # closing little there too: judged as before, the next one named, the reason kept
     law, off = cand("aging_logarithmic", -28000.0, 0.28, 0.5), cand("load_offset", -30.0, 0.4, 0.5)
-    assert select_named([law, off], {}, retry(0.1))[0] is off
-    assert "closes 10 %" in law["note"] and law["closes"] is False
+    chosen, _, (law, off) = select_named([law, off], {}, retry(0.1))
+    assert chosen is off and off.effect == "load_offset"
+    assert "closes 10 %" in law.note and law.closes is False
     asked.clear()
-    assert select_named([law, off], {}, retry(0.9))[0] is off and asked == []  # measured once only
+    assert select_named([law, off], {}, retry(0.9))[0].effect == "load_offset" and asked == []  # measured once only
     # nor for a candidate that explains little of the misfit, or one at the encoding's floor
     for kw in (dict(explained_share=0.1), dict(at_floor=True), dict(status="Line_Search_Failed")):
-        law = {**cand("aging_logarithmic", -28000.0, 0.28, 0.5), **kw}
-        select_named([law], {}, retry(0.9))
-        assert asked == [] and "own_sequence" not in law
+        law = cand("aging_logarithmic", -28000.0, 0.28, 0.5).but(**kw)
+        _, _, (law,) = select_named([law], {}, retry(0.9))
+        assert asked == [] and law.own_sequence is None
     # with resequencing off there is no retry: the old judgement
     law = cand("aging_logarithmic", -28000.0, 0.28, 0.5)
-    assert select_named([law], {}) == (None, None) and "own_sequence" not in law
+    chosen, group, (law,) = select_named([law], {})
+    assert chosen is None and group is None and law.own_sequence is None
 
 
 def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(monkeypatch):
@@ -1112,27 +1119,26 @@ def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(mo
     monkeypatch.setattr(dg, "resequence", reseq)
     monkeypatch.setattr(dg, "run_candidate", run)
     model = dict(values={"mu_max": 0.8}, free=("mu_max",), w=np.zeros(3), ev_M=np.zeros(1), chi2=20.0, n_eff=1)
-    base = dict(gap=dict(noise_um=0.025, gap_um=0.1), heldout=dict(gap_um=0.172))
+    base = Rec(gap=dict(noise_um=0.025, gap_um=0.1), heldout=dict(gap_um=0.172))
 
     def own(**kw):
-        c = dict(model, effect="aging_logarithmic", law="logarithmic", explained_share=0.5, closed_fraction=0.28,
-                 **kw)
-        dg._own_sequence(c, base, dict(model, law="exponential", n_theta=1), ["r"], identify.FitOptions(), None,
-                         [[0], [1]], DiagnosisOptions(), 1, Now(), lambda m: None)
-        return c
+        c = Rec(**model, effect="aging_logarithmic", law="logarithmic", explained_share=0.5, closed_fraction=0.28,
+                **kw)
+        return dg._own_sequence(c, base, dict(model, law="exponential", n_theta=1), ["r"], identify.FitOptions(),
+                                None, [[0], [1]], DiagnosisOptions(), 1, Now(), lambda m: None)
 
     control_changes = False
     c = own()
-    rec = c["own_sequence"]
+    rec = c.own_sequence
     assert calls == ["logarithmic", "exponential"]  # its own sequence, then the control's
     assert rec["changed"] and rec["current_resequenced"]["changed"] is False
     ex = lambda g: np.sqrt(g * g - 0.025 ** 2)  # noqa: E731  (above the noise)
     assert rec["closed_fraction"] == pytest.approx((ex(0.172) - ex(0.05)) / ex(0.172))
-    assert c["_own"]["runs"] == ["r", "new"] and c["_own"]["measured"]["heldout"]["gap_um"] == 0.05
+    assert c.own_model["runs"] == ["r", "new"] and c.own_model["measured"].heldout["gap_um"] == 0.05
     json.dumps(rec)  # the record goes to the JSON as it is
     # the current model's sequence changes too: the comparison is with it measured there
     control_changes, calls[:] = True, []
-    rec = own()["own_sequence"]
+    rec = own().own_sequence
     assert rec["heldout_gap_before_um"] == 0.15
     assert rec["closed_fraction"] == pytest.approx((ex(0.15) - ex(0.05)) / ex(0.15))
     assert "against the current model's 150.0 nm on the sequence it decides again" in dg.own_text(rec)
@@ -1151,13 +1157,14 @@ def test_own_sequence_compares_with_the_current_model_on_its_own_sequence_too(mo
     monkeypatch.setattr(dg, "resequence", broken)
     c = own(status="Solve_Succeeded", significant=True, ok=True, confounded_with=[], delta_aic=-28000.0,
             closes=False, at_floor=False, heldout_gap_ratio_before=7.0, estimate_text="B = 0.08", dr=np.ones(2))
-    rec = c["own_sequence"]
+    rec = c.own_sequence
     assert rec["changed"] is False and "no finite start" in rec["error"] and "closed_fraction" not in rec
     from identify.diagnosis.scores import closing_route
     from identify.diagnosis.selection import try_named, worth_own_sequence
 
-    assert rec["refits"] == 1 and "_own" not in c and not worth_own_sequence(c)
-    assert closing_route(c) is None and try_named(c, [])[0] is None and "failed: RuntimeError" in c["note"]
+    assert rec["refits"] == 1 and c.own_model is None and not worth_own_sequence(c)
+    chosen, _, (judged,) = try_named(c, [])
+    assert closing_route(c) is None and chosen is None and "failed: RuntimeError" in judged.note
 
 
 def test_a_candidate_whose_interval_holds_its_null_is_not_named():
@@ -1168,48 +1175,48 @@ def test_a_candidate_whose_interval_holds_its_null_is_not_named():
     from identify.diagnosis.selection import select_named, try_named, undetermined, worth_own_sequence
 
     def cand(effect, daic, par, value, ci, null):
-        return dict(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
-                    status="Solve_Succeeded", closes=True, closed_fraction=0.8, explained_share=0.5,
-                    heldout_delta_nll=100.0, delta_nll=50.0, estimate_text=effect, dr=np.ones(3),
-                    at_floor=False, heldout_gap_ratio_before=1.65, nulls={par: null},
-                    estimates={par: dict(value=value, stderr=1.0, ci95=ci)})
+        return Rec(effect=effect, ok=True, significant=True, confounded_with=[], delta_aic=daic,
+                   status="Solve_Succeeded", closes=True, closed_fraction=0.8, explained_share=0.5,
+                   heldout_delta_nll=100.0, delta_nll=50.0, estimate_text=effect, dr=np.ones(3),
+                   at_floor=False, heldout_gap_ratio_before=1.65, nulls={par: null},
+                   estimates={par: dict(value=value, stderr=1.0, ci95=ci)})
 
     def rej():
         return cand("rejuvenation", -37.8, "dc", 7.14e-9, [8.0e-10, 6.37e-8], 2e-8)
 
     off = cand("load_offset", -20.0, "load_offset", 2e-6, [1.9e-6, 2.1e-6], 0.0)
-    r = rej()
-    assert select_named([r, off], {})[0] is off  # (their residual changes are parallel: no tie with r)
-    assert r["undetermined"] and "dc: 8e-10 to 6.37e-08 holds the null 2e-08" in r["note"]
-    assert select_named([rej()], {}) == (None, None)
+    chosen, _, (r, off) = select_named([rej(), off], {})
+    assert chosen is off and off.effect == "load_offset"  # (their residual changes are parallel: no tie with r)
+    assert r.undetermined and "dc: 8e-10 to 6.37e-08 holds the null 2e-08" in r.note
+    assert select_named([rej()], {})[:2] == (None, None)
     # a log-scaled estimate far from its null in its own interval is determined, even with a
     # relative standard error that a linear z would call 1.6
     far = cand("rejuvenation", -37.8, "dc", 1e-6, [3.1e-7, 3.2e-6], 2e-8)
-    assert not undetermined(far) and try_named(far, [])[0] is far
+    assert not undetermined(far) and try_named(far, [])[0].effect == "rejuvenation"
     # no interval at all: nothing determined; a law has no null to exclude
     assert undetermined(cand("drift", -30.0, "drift_rate", 1e-9, [float("nan")] * 2, 0.0))
     c = cand("drift", -30.0, "drift_rate", 1e-9, None, 0.0)
-    c["estimates"]["drift_rate"]["stderr"] = None
-    assert try_named(c, []) == (None, None) and "no standard error" in c["note"]
+    c.estimates["drift_rate"]["stderr"] = None
+    chosen, group, (c,) = try_named(c, [])
+    assert chosen is None and group is None and "no standard error" in c.note
     # a standard error without an interval: value ± 1.96 of it
     c = cand("drift", -30.0, "drift_rate", 5e-8, None, 0.0)
-    c["estimates"]["drift_rate"]["stderr"] = 1e-9
-    assert not undetermined(c) and undetermined({**c, "estimates": {"drift_rate": dict(value=1.0, stderr=1.0)}})
-    assert not undetermined(dict(effect="aging_logarithmic", estimates={}, nulls={}))
+    c.estimates["drift_rate"]["stderr"] = 1e-9
+    assert not undetermined(c) and undetermined(c.but(estimates={"drift_rate": dict(value=1.0, stderr=1.0)}))
+    assert not undetermined(Rec(effect="aging_logarithmic", estimates={}, nulls={}))
     # nor is an undetermined one measured on its own mode sequence
-    r = rej()
-    r.update(closes=False, explained_share=0.9)
+    r = rej().but(closes=False, explained_share=0.9)
     assert not worth_own_sequence(r)
 
 
 def _not_significant(effect, estimates, at_magnitude, r2=0.009):
     """A candidate record as a worker returns it: no gain over the current model."""
-    return dict(effect=effect, ok=True, status="Stalled_Within_Tolerance", iterations=1, chi2=10538.45, n_obs=10930,
-                n_eff=30, r=np.zeros(3), free=["mu_max", "mu_min", "tau", "A"], estimates=estimates,
-                nulls={effect and get_effect(effect).parameters[0]: 0.0},
-                confounding={"c_extra": dict(r2=r2, partners=[], confounded=False)},
-                gap=dict(gap_um=0.022, noise_um=0.021, gap_sigma=1.05), heldout=dict(gap_um=0.023, gap_sigma=1.1),
-                at_magnitude=at_magnitude)
+    return Rec(effect=effect, ok=True, status="Stalled_Within_Tolerance", iterations=1, chi2=10538.45, n_obs=10930,
+               n_eff=30, r=np.zeros(3), free=["mu_max", "mu_min", "tau", "A"], estimates=estimates,
+               nulls={effect and get_effect(effect).parameters[0]: 0.0},
+               confounding={"c_extra": dict(r2=r2, partners=[], confounded=False)},
+               gap=dict(gap_um=0.022, noise_um=0.021, gap_sigma=1.05), heldout=dict(gap_um=0.023, gap_sigma=1.1),
+               at_magnitude=at_magnitude)
 
 
 def test_a_refit_that_could_not_start_says_so():
@@ -1221,10 +1228,10 @@ def test_a_refit_that_could_not_start_says_so():
 
     est = dict(mu_max=dict(value=0.79, stderr=0.006), mu_min=dict(value=0.66, stderr=3e-18))
     base = _not_significant(None, est, None)
-    law = dict(_not_significant("aging_logistic", est, None), status=NOT_DIFFERENTIABLE, chi2=1.2e9)
+    law = _not_significant("aging_logistic", est, None).but(status=NOT_DIFFERENTIABLE, chi2=1.2e9)
     (c,) = score_round([base, law], base, DiagnosisOptions(), 1)
-    assert not c["significant"] and not c["named"]
-    assert c["note"].startswith("the refit could not start") and "local solution" not in c["note"]
+    assert not c.significant and not c.named
+    assert c.note.startswith("the refit could not start") and "local solution" not in c.note
 
 
 def test_a_candidate_absorbed_at_its_realistic_magnitude_is_reported_confounded_with_what_absorbs_it():
@@ -1253,7 +1260,7 @@ def test_a_candidate_absorbed_at_its_realistic_magnitude_is_reported_confounded_
     # judged again against this round's best fit: the current model re-solved lower than
     # the χ² the worker knew puts the magnitude 5 units out
     lower = _not_significant(None, est, None)
-    lower["chi2"] -= 10.0
+    lower = lower.but(chi2=lower.chi2 - 10.0)
     (c,) = score_round([lower, _not_significant("damping", est, dict(absorbed))], lower, DiagnosisOptions(), 1)
     assert c["confounded_with"] == [] and c["at_magnitude"]["absorbed"] is False
     assert c["at_magnitude"]["delta_nll"] == pytest.approx(5.4) and "excluded" in c["note"]
@@ -1288,8 +1295,8 @@ def test_a_candidate_absorbed_at_its_realistic_magnitude_is_reported_confounded_
     # better only against the worker's reference, within the quantile of this round's best:
     # judged as absorbed, its partners from the moves alone
     lower = _not_significant(None, est, None)
-    lower["chi2"] -= 30.0
-    (c,) = score_round([lower, _not_significant("damping", est, dict(better, chi2=lower["chi2"] - 2.0))], lower,
+    lower = lower.but(chi2=lower.chi2 - 30.0)
+    (c,) = score_round([lower, _not_significant("damping", est, dict(better, chi2=lower.chi2 - 2.0))], lower,
                   DiagnosisOptions(), 1)
     m = c["at_magnitude"]
     assert m["absorbed"] and not m["better"] and m["delta_nll"] == pytest.approx(-1.0)

@@ -106,9 +106,11 @@ def test_no_usable_point_says_so(monkeypatch):
 
 # ---------------------------------------------------------------- naming in the diagnosis
 def _held(effect="rejuvenation"):
-    return dict(effect=effect, ok=True, note="", held_regime=dict(fits=True, reproduces=True),
-                at_magnitude=dict(parameter="dc", value=1e-6), w_at_magnitude=np.zeros(3),
-                ev_M_at_magnitude=np.zeros(0, int))
+    from identify.diagnosis.records import CandidateResult
+
+    return CandidateResult(effect=effect, ok=True, note="", held_regime=dict(fits=True, reproduces=True),
+                           at_magnitude=dict(parameter="dc", value=1e-6), w_at_magnitude=np.zeros(3),
+                           ev_M_at_magnitude=np.zeros(0, int))
 
 
 def _profile_held(monkeypatch, held, own=(), p=1e-13):
@@ -138,35 +140,32 @@ def _profile_held(monkeypatch, held, own=(), p=1e-13):
     current = dict(law="exponential", free=("mu_max", "tau"), values={"tau": 0.04}, chi2=2745.0)
     opts = D.DiagnosisOptions(effects=("rejuvenation", "drift"))
     regime_runs = [SimpleNamespace(name=n, noise_m=9e-8) for n in "abcdef"]
-    out = D._profile_held(held, current, ["fitted1", "fitted2"], None, opts, regime_runs, check, None, lambda m: None,
-                          n_cand=13, confounded=confounded)
-    return out, confounded, screened
+    out, changed = D._profile_held(held, current, ["fitted1", "fitted2"], None, opts, regime_runs, check, None,
+                                   lambda m: None, n_cand=13, confounded=confounded)
+    return out, confounded, screened, changed
 
 
 def test_a_significant_profile_no_own_move_matches_names_the_candidate(monkeypatch):
-    c = _held()
-    out, confounded, screened = _profile_held(monkeypatch, [c])
-    assert out["named"] and out["significant"] and confounded == [] and c["named"]
+    out, confounded, screened, (c,) = _profile_held(monkeypatch, [_held()])
+    assert out["named"] and out["significant"] and confounded == [] and c.named
     assert screened == [8]  # the own moves read on every run: 6 left out, 2 fitted
     assert "Named" in out["note"] and "between 560 nm and 1800 nm" in out["note"]
-    assert "named by its profile" in c["note"]
+    assert "named by its profile" in c.note
 
 
 def test_an_own_move_that_makes_every_run_confounds_the_candidate(monkeypatch):
-    c = _held()
-    out, confounded, _ = _profile_held(monkeypatch, [c], own=[{"tau": 67.4}])
-    assert not out["named"] and c["confounded_with"] == ["tau"] and not c.get("named")
+    out, confounded, _, (c,) = _profile_held(monkeypatch, [_held()], own=[{"tau": 67.4}])
+    assert not out["named"] and c.confounded_with == ["tau"] and not c.named
     assert confounded[0]["effects"] == ["rejuvenation"] and "tau ≥ 67.4" in out["note"]
 
 
 def test_a_profile_that_is_not_significant_names_nothing(monkeypatch):
-    out, confounded, screened = _profile_held(monkeypatch, [_held()], p=0.01)
+    out, confounded, screened, _ = _profile_held(monkeypatch, [_held()], p=0.01)
     assert not out["named"] and screened == [] and "not significant" in out["note"]
 
 
 def test_two_candidates_that_make_the_runs_are_confounded_and_not_profiled(monkeypatch):
-    a, b = _held(), _held("spring_constant")
-    out, confounded, screened = _profile_held(monkeypatch, [a, b])
+    out, confounded, screened, (a, b) = _profile_held(monkeypatch, [_held(), _held("spring_constant")])
     assert not out["named"] and screened == [] and out["effect"] is None
     assert confounded[0]["effects"] == ["rejuvenation", "spring_constant"]
-    assert a["confounded_with"] == ["spring_constant"] and b["confounded_with"] == ["rejuvenation"]
+    assert a.confounded_with == ["spring_constant"] and b.confounded_with == ["rejuvenation"]

@@ -248,7 +248,7 @@ def test_candidate_notes_say_what_each_does_to_the_left_out_runs():
     fixes = dict(effect="rejuvenation", ok=True, note="significant", regime=dict(mismatched=[]))
     keeps = dict(effect="drift", ok=True, note=None, regime=dict(mismatched=["a", "b"]))
     breaks = dict(effect="damping", ok=True, note="x", regime=dict(mismatched=["a", "c"]))
-    regime_notes([fixes, keeps, breaks], base)
+    fixes, keeps, breaks = regime_notes([fixes, keeps, breaks], base)  # (the decision returns new records)
     assert fixes["regime_fixed"] == ["a", "b"] and fixes["note"].startswith("significant; under it 2 of the 2")
     assert keeps["regime_fixed"] == [] and keeps["note"].startswith("it leaves the 2 run(s)")
     assert breaks["regime_fixed"] == ["b"] and breaks["regime_broken"] == ["c"]
