@@ -186,9 +186,31 @@ def _merge_insignificant(b: np.ndarray, segs: list[Segment], sigma: float, min_z
     return segs
 
 
-def _exclude_short(b: np.ndarray, segs: list[Segment]) -> tuple[list[Segment], list[int], int]:
-    """Drop runs of short segments (≤ MAX_INSIDE_FRAMES frames in all) between two
-    plateaus (≥ MIN_PLATEAU_FRAMES frames).
+SLOW_SLIP_FACTOR = 3.0
+"""A run of short segments between two plateaus, longer than ``MAX_INSIDE_FRAMES``, is a
+slow slip caught in several frames (a slip that lasts several steps: PELT, with a small
+σ, gives each of its frames a level of its own) when its levels climb from one plateau
+to the next and the block advanced this many times faster per puller step than it
+does on average over the run; otherwise its segments stay (stepping: the block follows
+each step)."""
+
+
+def _slow_slip(b, segs, lv, i, j, steps) -> bool:
+    """Whether short segments i..j-1, between plateaus i-1 and j, are one slow slip."""
+    if steps is None or steps[-1] <= steps[0]:
+        return False
+    levels = [lv[i - 1], *lv[i:j], lv[j]]
+    if not all(x < y for x, y in zip(levels, levels[1:])):
+        return False
+    mean_rate = (b[-1] - b[0]) / (steps[-1] - steps[0])  # the block's average advance per step
+    elapsed = max(int(steps[segs[j].frames[0]] - steps[segs[i - 1].frames[-1]]), 1)
+    return mean_rate > 0 and (lv[j] - lv[i - 1]) / elapsed > SLOW_SLIP_FACTOR * mean_rate
+
+
+def _exclude_short(b: np.ndarray, segs: list[Segment], steps: np.ndarray | None = None
+                   ) -> tuple[list[Segment], list[int], int]:
+    """Drop runs of short segments (≤ MAX_INSIDE_FRAMES frames in all, or a slow slip's
+    frames: :data:`SLOW_SLIP_FACTOR`) between two plateaus (≥ MIN_PLATEAU_FRAMES frames).
 
     Returns the kept segments, the excluded frame indices and how many of the excluded
     runs were *not* between the levels of their plateaus (outliers, not slip frames).
@@ -208,7 +230,7 @@ def _exclude_short(b: np.ndarray, segs: list[Segment]) -> tuple[list[Segment], l
             j += 1
         # segments i..j-1 are short; bounded by plateaus i-1 and j?
         total = sum(segs[k].n for k in range(i, j))
-        if i > 0 and j < len(segs) and total <= MAX_INSIDE_FRAMES:
+        if i > 0 and j < len(segs) and (total <= MAX_INSIDE_FRAMES or _slow_slip(b, segs, lv, i, j, steps)):
             lo, hi = sorted((lv[i - 1], lv[j]))
             for k in range(i, j):
                 keep[k] = False
@@ -297,7 +319,7 @@ def segment_run(b, steps, noise_m, min_z, frames_per_step, noise_floor):
     floor = max(1e-7 * float(np.ptp(b)), noise_floor)
     sigma = noise_m if noise_m is not None else max(robust_noise(b), floor)
     for _ in range(3):
-        segs, _, seg_warnings = _segment(b, sigma, min_z)
+        segs, _, seg_warnings = _segment(b, sigma, min_z, steps)
         segs = _snap_to_steps(b, steps, segs, sigma, frames_per_step)
         if noise_m is not None:
             break
@@ -310,7 +332,8 @@ def segment_run(b, steps, noise_m, min_z, frames_per_step, noise_floor):
     return segs, float(sigma), seg_warnings
 
 
-def _segment(b: np.ndarray, sigma: float, min_z: float) -> tuple[list[Segment], list[int], list[str]]:
+def _segment(b: np.ndarray, sigma: float, min_z: float, steps: np.ndarray | None = None
+             ) -> tuple[list[Segment], list[int], list[str]]:
     """Plateaus and excluded frames of b (steps 0-2 of the module docstring)."""
     n = b.size
     warnings: list[str] = []
@@ -321,7 +344,7 @@ def _segment(b: np.ndarray, sigma: float, min_z: float) -> tuple[list[Segment], 
     segs = _merge_insignificant(b, segs, sigma, min_z)
     excluded_all: list[int] = []
     for _ in range(5):  # excluding frames can make neighbours mergeable, and so on
-        segs, excluded, outliers = _exclude_short(b, segs)
+        segs, excluded, outliers = _exclude_short(b, segs, steps)
         if outliers:
             warnings.append(
                 f"{outliers} short run(s) of frames outside the levels of their neighbouring "

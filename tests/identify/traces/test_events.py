@@ -342,3 +342,21 @@ def test_an_ambiguous_trigger_names_its_other_step():
     assert alt[56] == truth[56] and margin[56] < AMBIGUOUS_RSS
     # few boundaries are ambiguous (measured: 5 of 80, median margin 25 σ²)
     assert np.sum(margin < AMBIGUOUS_RSS) <= 8 and np.median(margin) > 2 * AMBIGUOUS_RSS
+
+
+@pytest.mark.parametrize("noise_nm", [1.0, 10.0])
+def test_a_slow_slip_caught_in_several_frames_is_one_slip(noise_nm):
+    """A soft spring (2.13 N/m, 30 µN, 100 Hz) with a small gap μmax − μmin under the
+    stick option slips slowly, over ~5 frames (2.5 steps): at low noise each of those
+    frames got a level of its own, and every slip came out as five (54 slips for 9, the
+    regime 'unresolved'). The frames climb from one plateau to the next far faster than
+    the block's average advance per step: they are one slip's."""
+    import warnings as _w
+
+    truth = dict(mu_max=0.6308, mu_min=0.5476, tau=0.0474, A=0.0184)
+    with _w.catch_warnings():
+        _w.simplefilter("ignore")
+        sim = simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=30, step_frequency_Hz=100,
+                       travel_um=20.0, stick_speed_m_per_s=1e-5, params=truth, initial_state=truth["mu_max"])
+    ev = extract_events(sim.sample(noise_nm=noise_nm, seed=5, name="slow", frame_phase=0.75))
+    assert ev.regime == "stick-slip" and ev.n_slips == len(sim.events) == 9
