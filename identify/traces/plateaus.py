@@ -195,6 +195,13 @@ does on average over the run; otherwise its segments stay (stepping: the block f
 each step)."""
 
 
+SLOW_SLIP_SHARE = 1 / 8
+"""In a run whose median segment is 24 frames or longer, a segment between the levels of
+its neighbours and at most this share of the median long is looked at as a possible slow
+slip's frames (which the noise groups in pieces of a few frames each), not taken as a
+plateau outright; runs of shorter rests keep MIN_PLATEAU_FRAMES as the only test."""
+
+
 def _slow_slip(b, segs, lv, i, j, steps) -> bool:
     """Whether short segments i..j-1, between plateaus i-1 and j, are one slow slip."""
     if steps is None or steps[-1] <= steps[0]:
@@ -217,6 +224,13 @@ def _exclude_short(b: np.ndarray, segs: list[Segment], steps: np.ndarray | None 
     """
     lv = _levels(b, segs)
     long_ = np.array([s.n >= MIN_PLATEAU_FRAMES for s in segs])
+    if steps is not None and len(segs) >= 5:
+        # in a run of long rests, a segment a small fraction of the typical one may be a
+        # slow slip's frames grouped by the noise: short for the slow-slip test below
+        brief = int(np.median([sg.n for sg in segs]) * SLOW_SLIP_SHARE)
+        if brief >= MIN_PLATEAU_FRAMES:  # (rests of 24 frames and more: else as before)
+            long_ &= np.array([s.n > brief for s in segs]) | ~np.array([
+                0 < k < len(segs) - 1 and lv[k - 1] < lv[k] < lv[k + 1] for k in range(len(segs))])
     keep = np.ones(len(segs), bool)
     excluded: list[int] = []
     outliers = 0
