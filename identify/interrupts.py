@@ -19,7 +19,7 @@ import contextlib
 import signal
 import threading
 
-__all__ = ["Interrupted", "check", "honoured", "note", "pending"]
+__all__ = ["Interrupted", "caused_by_interrupt", "check", "honoured", "note", "pending"]
 
 _pending = False
 _depth = 0
@@ -43,6 +43,20 @@ def note() -> None:
 
 def pending() -> bool:
     """Whether an interrupt arrived that has not reached the caller yet."""
+    return _pending
+
+
+def caused_by_interrupt(err: BaseException) -> bool:
+    """Whether ``err`` is what an interrupt became on its way out of C code: an interrupt
+    is pending, or ``err`` was raised from or during one (a ``KeyboardInterrupt`` that
+    lands inside CasADi's conversion to an array comes out as a ``SystemError``, "returned
+    a result with an exception set")."""
+    seen, e = set(), err
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
     return _pending
 
 

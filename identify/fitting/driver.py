@@ -220,10 +220,19 @@ def fit(data, *, coating: str | None = None, options: FitOptions | None = None, 
             return _fit(data, coating=coating, options=options, true_values=true_values, progress=progress)
         except interrupts.Interrupted:
             raise
+        except Exception as err:  # (an interrupt that landed inside C code comes out as another error)
+            if not interrupts.caused_by_interrupt(err):
+                raise
+            raise _interrupted(seen) from err
         except KeyboardInterrupt as err:
-            saved = seen.saved()
-            what = f"{saved['what']}, at chi-square {saved['chi2']:.6g}," if saved else "no solve had begun"
-            raise interrupts.Interrupted(what, saved) from err
+            raise _interrupted(seen) from err
+
+
+def _interrupted(seen) -> interrupts.Interrupted:
+    """The interrupt with the best point the fit had reached (``seen``)."""
+    saved = seen.saved()
+    what = f"{saved['what']}, at chi-square {saved['chi2']:.6g}," if saved else "no solve had begun"
+    return interrupts.Interrupted(what, saved)
 
 
 def _fit(data, *, coating, options, true_values, progress):

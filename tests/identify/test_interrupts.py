@@ -138,6 +138,33 @@ def test_an_interrupt_noted_inside_casadi_is_raised_at_the_next_check():
     interrupts.check()  # (cleared when the call ends)
 
 
+def test_an_interrupt_that_comes_out_of_c_code_as_another_error_is_an_interrupt(monkeypatch):
+    """A SIGINT that lands inside CasADi's conversion of a result to an array comes out
+    as ``SystemError: ... returned a result with an exception set`` (seen once in CI,
+    reported as an internal error, rc 4): with the interrupt noted, the fit raises
+    ``Interrupted``; without one, the error stays what it is."""
+    from identify import fit
+    from identify.fitting import driver
+
+    def fault(*args, **kwargs):  # (injected: the error an interrupt becomes in C code)
+        interrupts.note()
+        raise SystemError("<function DM.__array__> returned a result with an exception set")
+
+    monkeypatch.setattr(driver, "_fit", fault)
+    with pytest.raises(interrupts.Interrupted, match="no solve had begun"):
+        fit([])
+
+    def plain(*args, **kwargs):
+        raise SystemError("a fault of ours")
+
+    monkeypatch.setattr(driver, "_fit", plain)
+    with pytest.raises(SystemError, match="a fault of ours"):
+        fit([])
+    err = SystemError("x")
+    err.__context__ = KeyboardInterrupt()
+    assert interrupts.caused_by_interrupt(err) and not interrupts.caused_by_interrupt(ValueError("y"))
+
+
 def test_the_library_fit_raises_interrupted_with_its_best_point():
     from identify import FitOptions, fit
 
