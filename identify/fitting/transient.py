@@ -277,14 +277,8 @@ def _displacement_from_change(run: TransientRun) -> np.ndarray:
     """Load-point displacement (µm) from its position at the drive's first velocity
     change (negative before it), as xlook's linear term takes it."""
     d = run.drive
-    times = np.asarray(d.times_s, float)
-    vels = np.asarray(d.velocities_um_per_s, float)
-    edges = np.concatenate([times, [max(run.time_s[-1], times[-1])]])
-    x = np.zeros_like(run.time_s)
-    for i in range(len(vels)):
-        x += vels[i] * np.clip(np.minimum(run.time_s, edges[i + 1]) - edges[i], 0, None)
-    x_change = vels[0] * (times[1] - times[0]) if len(times) > 1 else 0.0
-    return x - x_change
+    x = d.displacement_um(run.time_s)
+    return x - (d.displacement_um(np.array([d.times_s[1]]))[0] if len(d.times_s) > 1 else 0.0)
 
 
 def _result(run, law, values, free, J, r, best, n_best, n_solves, p0) -> TransientFitResult:

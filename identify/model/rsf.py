@@ -53,6 +53,18 @@ class VelocityDrive:
         idx = np.searchsorted(np.asarray(self.times_s), np.asarray(t, float), side="right") - 1
         return np.asarray(self.velocities_um_per_s, float)[np.clip(idx, 0, None)]
 
+    def displacement_um(self, t: np.ndarray) -> np.ndarray:
+        """The load point's displacement (µm) at the times ``t`` from its position at
+        ``times_s[0]``."""
+        t = np.asarray(t, float)
+        times = np.asarray(self.times_s, float)
+        vels = np.asarray(self.velocities_um_per_s, float)
+        edges = np.concatenate([times, [max(float(t.max(initial=times[-1])), times[-1])]])
+        x = np.zeros_like(t)
+        for i, v in enumerate(vels):  # (over the stretches, not the samples)
+            x += v * np.clip(np.minimum(t, edges[i + 1]) - edges[i], 0, None)
+        return x
+
     def to_dict(self) -> dict:
         return dict(kind="velocity_steps", times_s=list(map(float, self.times_s)),
                     velocities_um_per_s=list(map(float, self.velocities_um_per_s)))

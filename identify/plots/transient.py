@@ -13,14 +13,10 @@ __all__ = ["plot_cycles", "plot_transient_fit"]
 
 def _displacement(result) -> np.ndarray:
     """Load-point displacement (µm) from the window's start, from the drive."""
-    t = np.asarray(result.time_s, float)
-    times = np.asarray(result.drive["times_s"], float)
-    vels = np.asarray(result.drive["velocities_um_per_s"], float)
-    edges = np.concatenate([times, [max(t[-1], times[-1])]])
-    x = np.zeros_like(t)
-    for i, v in enumerate(vels):
-        x += v * np.clip(np.minimum(t, edges[i + 1]) - edges[i], 0, None)
-    return x
+    from identify.model.rsf import VelocityDrive
+
+    d = result.drive
+    return VelocityDrive(tuple(d["times_s"]), tuple(d["velocities_um_per_s"])).displacement_um(result.time_s)
 
 
 def plot_transient_fit(result, ax=None):
