@@ -11,6 +11,7 @@ from identify.diagnosis.rounds import DiagnosisOptions, DiagnosisResult, diagnos
 from identify.fitting.driver import FitError, FitOptions, fit
 from identify.fitting.parameters import Parameter, Parameters
 from identify.fitting.result import FitResult
+from identify.fitting.solver_options import GaussNewtonOptions, IpoptOptions, StopOptions
 from identify.fitting.transient import TransientFitError, TransientRun, fit_transient
 from identify.fitting.transient_result import TransientFitResult
 from identify.model.laws import LAWS, get_law
@@ -59,6 +60,9 @@ __all__ = [
     "analyze",
     "FitError",
     "FitOptions",
+    "StopOptions",
+    "GaussNewtonOptions",
+    "IpoptOptions",
     "fit",
     "FitResult",
     "Parameter",

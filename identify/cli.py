@@ -251,6 +251,9 @@ def _add_fit_arguments(p, json_required: bool):
     p.add_argument("--sequence-trials", type=int, default=None, metavar="N",
                    help="trials of the last mode-sequence repair, where the model's slip triggers "
                         "misfit (default: FitOptions.sequence_trials, 64; 0 turns it off)")
+    p.add_argument("--sequence-passes", default=None, metavar="P1,P2",
+                   help="the mode-sequence repairs to make, of triggers, missed, batch, ambiguous, misfit "
+                        "(default: all; 'none' fits the sequence as detected)")
     p.add_argument("--solver", default="gauss-newton", choices=("gauss-newton", "ipopt"))
     p.add_argument("--trigger", default="uniform", choices=("uniform", "interval"),
                    help="trigger encoding: uniform residuals (default), or intervals solved last "
@@ -297,7 +300,17 @@ def _fit_options(args):
                       free_offset=args.free_offset, multistart=args.multistart, seed=args.seed,
                       solver=args.solver, trigger=args.trigger, stick_speed=stick,
                       check_platform=not getattr(args, "outside_platform_ranges", False),
-                      **({} if args.sequence_trials is None else {"sequence_trials": args.sequence_trials}))
+                      **({} if args.sequence_trials is None else {"sequence_trials": args.sequence_trials}),
+                      **_sequence_passes(getattr(args, "sequence_passes", None)))
+
+
+def _sequence_passes(text: str | None) -> dict:
+    """``--sequence-passes`` as the option (none given: the options' default)."""
+    if text is None:
+        return {}
+    if text.strip().lower() == "none":
+        return {"sequence_passes": ()}
+    return {"sequence_passes": tuple(p.strip() for p in text.split(",") if p.strip())}
 
 
 def _stick_mode(args) -> str:

@@ -30,3 +30,14 @@ def strict_json():
             return json.loads(fh.read(), parse_constant=_refuse_constant)
 
     return read
+
+
+@pytest.fixture
+def tune():
+    """``tune(prob, **changes)``: the problem's solver options changed through its public
+    ``Problem.tuned`` for the rest of the test, restored at its end (module-scoped fits
+    are shared between tests)."""
+    import contextlib
+
+    with contextlib.ExitStack() as stack:
+        yield lambda prob, **changes: stack.enter_context(prob.tuned(**changes))

@@ -16,6 +16,7 @@ solved: :mod:`identify.diagnosis.refit_solve`; the screen a name asks and the ea
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -47,7 +48,6 @@ from identify.diagnosis.refit_solve import EXTRA_ROUNDS_NAMEABLE as EXTRA_ROUNDS
 from identify.diagnosis.refit_solve import ROUND_GAIN as ROUND_GAIN
 from identify.diagnosis.refit_solve import candidate_problem, solve_on
 from identify.fitting.convergence import GAVE_UP as GAVE_UP
-from identify.fitting.convergence import GIVE_UP_FEAS
 from identify.fitting.convergence import STALLED as STALLED
 
 __all__ = ["CandidateResult", "CandidateTask", "run_candidate", "candidate_problem", "regime_of_left_out"]
@@ -162,12 +162,13 @@ def _refit(task: CandidateTask, prob, scored: list) -> dict:
     # several basins: each is dropped after its first iteration once it cannot reach
     # the screen (BASIN_GIVE_UP_AFTER), not after GIVE_UP_AFTER as a single start is
     several = len({kind[1] for _, kind, _ in todo}) > 1
-    if several:
-        prob.give_up = give_up_rule(task, prob, after=BASIN_GIVE_UP_AFTER)
-        prob.give_up_feas = BASIN_GIVE_UP_FEAS
-    for w0, _, f0 in todo:
-        best = _better(best, solve_on(prob, w0, f0, nameable))
-    prob.give_up, prob.give_up_feas = give_up_rule(task, prob), GIVE_UP_FEAS
+    with contextlib.ExitStack() as basins:
+        if several:
+            prob.give_up = give_up_rule(task, prob, after=BASIN_GIVE_UP_AFTER)
+            basins.enter_context(prob.tuned(give_up_feas=BASIN_GIVE_UP_FEAS))
+        for w0, _, f0 in todo:
+            best = _better(best, solve_on(prob, w0, f0, nameable))
+    prob.give_up = give_up_rule(task, prob)
     if not several:  # (several basins are their own diversity already)
         best = _solve_passed_over(task, prob, scored, todo, best, (nameable, const))
     if best is None:

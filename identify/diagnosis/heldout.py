@@ -165,7 +165,7 @@ def _linear_holds(prob, w_new, r_lin, in_rows, lbx, ubx) -> bool:
     rms = lambda a: float(np.sqrt(np.mean(a**2))) if a.size else 0.0  # noqa: E731
     diff = r_new - r_lin
     # (never below ten times the solver's own feasibility: near-noiseless runs)
-    g_tol = max(LINEAR_TOL * float(np.min([rd.sigma for rd in prob.runs])) * 1e6, 10 * prob.feas_tol)
+    g_tol = max(LINEAR_TOL * float(np.min([rd.sigma for rd in prob.runs])) * 1e6, 10 * prob.opts.stop.feas_tol)
     return (rms(diff[in_rows]) <= LINEAR_TOL and rms(diff[~in_rows]) <= LINEAR_TOL
             and (g_new.size == 0 or float(np.max(np.abs(g_new))) <= g_tol))
 
@@ -176,9 +176,7 @@ def _subproblem(prob, w: np.ndarray, runs: Sequence[int]):
     from identify.fitting.problem import Problem
 
     lay = Layout.of(prob)
-    sub = Problem([prob.runs[i] for i in runs], prob.model, prob.values, prob.opts)
-    for tol in ("stat_tol", "feas_tol", "stall_tol", "stall_feas", "near_tol"):
-        setattr(sub, tol, getattr(prob, tol))
+    sub = Problem([prob.runs[i] for i in runs], prob.model, prob.values, prob.opts)  # (its tolerances too)
     sub.ev_M = np.asarray(prob.ev_M)[np.isin(prob.ev_run, runs)]
     sub.build()
     w_sub = w[(lay.var_run == -1) | np.isin(lay.var_run, runs)]

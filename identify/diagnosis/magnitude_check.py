@@ -33,7 +33,6 @@ spare.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 from scipy import stats
@@ -141,24 +140,24 @@ def _solve_held(task, prob, w: np.ndarray, i: int, target: float, judge: tuple) 
     stop, decisive = _stops(ref, need, const)
     w0 = np.array(w, float)
     w0[i] = target
-    give_up0, far0, opts0 = prob.give_up, getattr(prob, "give_up_far", None), prob.opts
+    give_up0, far0 = prob.give_up, getattr(prob, "give_up_far", None)
     try:
         # (the arcs may be resized: the refit's record has taken its own horizons already)
         if prob.E:
             w0 = prob.settle_arcs(w0)
         prob.give_up, prob.give_up_far = stop, decisive
-        prob.opts = replace(opts0, max_iter=min(opts0.max_iter, MAGNITUDE_MAX_ITER))
-        sol = prob.solve(w0, fixed={i: target})
-        if (task.regime_runs and not sol.get("success") and sol["status"] != GAVE_UP
-                and np.isfinite(sol["f"]) and 2.0 * float(sol["f"]) + const - ref <= need):
-            # the runs left out are read at this point (_left_out_at_held), which fits as
-            # well so far: finished towards continuity, where its χ² is the model's.
-            # Measured (rejuvenation held at 1 µm): 10 iterations left it 2.9 nm off continuity
-            more = prob.solve(sol["w"], fixed={i: target})
-            if np.isfinite(more["f"]):
-                sol = dict(more, iterations=int(sol["iterations"]) + int(more["iterations"]))
+        with prob.tuned(max_iter=min(prob.opts.max_iter, MAGNITUDE_MAX_ITER)):
+            sol = prob.solve(w0, fixed={i: target})
+            if (task.regime_runs and not sol.get("success") and sol["status"] != GAVE_UP
+                    and np.isfinite(sol["f"]) and 2.0 * float(sol["f"]) + const - ref <= need):
+                # the runs left out are read at this point (_left_out_at_held), which fits as
+                # well so far: finished towards continuity, where its χ² is the model's.
+                # Measured (rejuvenation held at 1 µm): 10 iterations left it 2.9 nm off continuity
+                more = prob.solve(sol["w"], fixed={i: target})
+                if np.isfinite(more["f"]):
+                    sol = dict(more, iterations=int(sol["iterations"]) + int(more["iterations"]))
     finally:
-        prob.give_up, prob.give_up_far, prob.opts = give_up0, far0, opts0
+        prob.give_up, prob.give_up_far = give_up0, far0
     return sol
 
 

@@ -50,22 +50,22 @@ def candidate_problem(task, free: tuple):
 
     bounds = {n: b for n, b in {**dict(task.options.bounds), **task.bounds}.items() if n in free}
     opts = replace(task.options, free=free, bounds=bounds, fixed={}, start={}, law=task.law,
-                   threads=task.threads, max_iter=task.max_iter)
+                   threads=task.threads, max_iter=task.max_iter).evolve(
+        # a candidate is scored by its Δnll: converging to 0.01 of a likelihood unit is plenty
+        stat_tol=CANDIDATE_STAT_TOL,
+        # continuity to 10 pm: finite-difference noise of the arcs keeps ~1e-6 µm
+        feas_tol=1e-5,
+        # and a refit that stalls is good enough if its Δnll is known to a likelihood unit,
+        # as for a round that stops at the iteration limit
+        stall_tol=ROUND_GAIN,
+        # judged so within GIVE_UP_FEAS of continuity (1 nm, 1/90 of the camera noise): the
+        # stall test's ½χ² gap is to the linearised problem's *feasible* stationary point,
+        # so restoring continuity is in it. Measured (drift at 5e-9 m/s, 0.1× the withheld
+        # set's): the refit stopped with |g| = 1.03e-4 µm, just above the fit's 1e-4, and ½χ²
+        # 0.025 from that point — "not converged", so a drift rate of 4.971e-9 ± 0.085e-9
+        # m/s that closed the whole held-out gap (38.6 -> 19.7 nm, noise 20.1) was not named
+        stall_feas=GIVE_UP_FEAS)
     prob = Problem(task.runs, Model(get_law(task.law)), dict(task.values), opts)
-    # a candidate is scored by its Δnll: converging to 0.01 of a likelihood unit is plenty
-    prob.stat_tol = CANDIDATE_STAT_TOL
-    # continuity to 10 pm: finite-difference noise of the arcs keeps ~1e-6 µm
-    prob.feas_tol = 1e-5
-    # and a refit that stalls is good enough if its Δnll is known to a likelihood unit,
-    # as for a round that stops at the iteration limit
-    prob.stall_tol = ROUND_GAIN
-    # judged so within GIVE_UP_FEAS of continuity (1 nm, 1/90 of the camera noise): the
-    # stall test's ½χ² gap is to the linearised problem's *feasible* stationary point,
-    # so restoring continuity is in it. Measured (drift at 5e-9 m/s, 0.1× the withheld
-    # set's): the refit stopped with |g| = 1.03e-4 µm, just above the fit's 1e-4, and ½χ²
-    # 0.025 from that point — "not converged", so a drift rate of 4.971e-9 ± 0.085e-9
-    # m/s that closed the whole held-out gap (38.6 -> 19.7 nm, noise 20.1) was not named
-    prob.stall_feas = GIVE_UP_FEAS
     if task.ev_M is not None and len(task.ev_M) == prob.E:
         prob.ev_M = np.array(task.ev_M)
     return prob.build()

@@ -18,15 +18,10 @@ from identify.fitting.arcs import SOLVE_REL_STEP
 from identify.fitting.convergence import (
     FEAS_TOL,
     GAVE_UP,
-    GIVE_UP_FEAS,
-    LOOSE_FEAS_TOL,
-    LOOSE_STAT_TOL,
     NOT_DIFFERENTIABLE,
     STALL_FEAS,
-    STALL_ITERS,
     STALL_TOL,
     STALLED,
-    STAT_TOL,
     bounded_step,
     kkt_solve,
 )
@@ -67,17 +62,12 @@ _NEXT, _END = "next iteration", "end of the solve"  # what a step of solve_gn sa
 class GaussNewtonSQP(MeritLineSearch):
     """The Gauss–Newton SQP of the identification NLP (mixed into the problem).
 
-    Its tolerances are class attributes, from the module's constants; a candidate refit of
-    the diagnosis overrides them on its problem instance
-    (:mod:`identify.diagnosis.candidates`).
+    Its tolerances are the problem's options (``opts.stop``, ``opts.gauss_newton``:
+    :mod:`identify.fitting.solver_options`); a candidate refit of the diagnosis builds its
+    problem with its own (:mod:`identify.diagnosis.refit_solve`) and changes them for a
+    block of solves with :meth:`identify.fitting.problem.Problem.tuned`.
     """
 
-    stat_tol, feas_tol = STAT_TOL, FEAS_TOL
-    ladder_reach, ladder_step = LADDER_REACH, LADDER_STEP
-    stall_tol, stall_feas = STALL_TOL, STALL_FEAS
-    near_tol = NEAR_TOL
-    give_up_feas = GIVE_UP_FEAS  # the give_up callback is asked only this close to continuity (µm)
-    flat_iters = FLAT_ITERS  # (0: the rule off)
     # the same kind of callback, asked wherever give_up is not (away from continuity, or
     # when there is no give_up): a stop only when decisive
     give_up_far = None
@@ -121,7 +111,7 @@ class GaussNewtonSQP(MeritLineSearch):
         finally:
             self.jacobian_scheme(self.opts.arc_jacobian, SOLVE_REL_STEP)  # (solve_gn may switch)
         forward_failed = res["status"] in ("Stalled", "Line_Search_Failed") and self.opts.arc_jacobian == "forward"
-        if forward_failed and (feas := self._violation(res["w"])) >= CENTRAL_RESOLVE_FEAS:
+        if forward_failed and (feas := self._violation(res["w"])) >= self.opts.gauss_newton.central_resolve_feas:
             log.debug("%s at |g| %.2e µm: no central-difference solve after it (CENTRAL_RESOLVE_FEAS)",
                       res["status"], feas)
         elif forward_failed:
@@ -230,7 +220,7 @@ class GaussNewtonSQP(MeritLineSearch):
         w = np.clip(np.asarray(w0, float), lbx, ubx)
         # (never looser than STALL_TOL: a candidate's stall_tol of a likelihood unit is for
         # its Δnll, and a named candidate's estimates come from where its refit ends)
-        flat_tol = min(self.stall_tol, STALL_TOL)
+        flat_tol = min(self.opts.stop.stall_tol, STALL_TOL)
         may_share = self._cb_jac_shared()
         r, g = self.evaluate(w)
         return SolveState(w=w, r=r, g=g, lbx=lbx, ubx=ubx, fixed_mask=lbx == ubx, t0=t0, said=t0, flat_tol=flat_tol,
@@ -298,7 +288,7 @@ class GaussNewtonSQP(MeritLineSearch):
         # model by 9e-6 of ½χ² and promised 2e-4, instead of 13).
         it, lm, g, d, grad, r0 = st.it, st.lm, st.g, step.d, step.grad, step.r0
         feas0 = float(np.abs(g).max()) if g.size else 0.0
-        stat_tol, feas_tol = self.stat_tol, self.feas_tol
+        stat_tol, feas_tol = self.opts.stop.stat_tol, self.opts.stop.feas_tol
         dr = step.Jr @ d
         moves = 0.5 * float(dr @ dr)
         step.feas0, step.stat_tol, step.feas_tol, step.dr, step.moves = feas0, stat_tol, feas_tol, dr, moves
@@ -308,14 +298,15 @@ class GaussNewtonSQP(MeritLineSearch):
         # is not loosened further by this rule)
         # (none of these where the step would remove a good share of what is left of
         # ½χ² itself: NEAR_SHARE)
-        real = moves >= NEAR_SHARE * 0.5 * float(r0 @ r0)
-        near = (self.near_tol > 0 and lm == 0 and feas0 < min(self.stall_feas, STALL_FEAS) and not real
-                and moves < max(self.near_tol, stat_tol)
-                and abs(float(grad @ d) + moves) < min(self.stall_tol, STALL_TOL))
+        gn, stop = self.opts.gauss_newton, self.opts.stop
+        real = moves >= gn.near_share * 0.5 * float(r0 @ r0)
+        near = (gn.near_tol > 0 and lm == 0 and feas0 < min(stop.stall_feas, STALL_FEAS) and not real
+                and moves < max(gn.near_tol, stat_tol)
+                and abs(float(grad @ d) + moves) < min(stop.stall_tol, STALL_TOL))
         # (and, as for NEAR_TOL, ½χ²'s own change along the step, restoring continuity
         # included, within the tolerance: moves alone leaves out λᵀg)
-        loose = (self._loose and lm == 0 and feas0 < LOOSE_FEAS_TOL and moves < LOOSE_STAT_TOL
-                 and abs(float(grad @ d) + moves) < LOOSE_STAT_TOL)
+        loose = (self._loose and lm == 0 and feas0 < stop.loose_feas_tol and moves < stop.loose_stat_tol
+                 and abs(float(grad @ d) + moves) < stop.loose_stat_tol)
         tight = feas0 < feas_tol and moves < stat_tol and not real
         if not (tight or near or loose):
             return False
@@ -337,7 +328,8 @@ class GaussNewtonSQP(MeritLineSearch):
         points, the last an undamped step promising less than FLAT_PROMISE (a stall within
         tolerance); the count starts again away from feasibility."""
         feas_tol = step.feas_tol
-        if self.flat_iters and step.feas0 < min(feas_tol, FEAS_TOL):
+        gn = self.opts.gauss_newton
+        if gn.flat_iters and step.feas0 < min(feas_tol, FEAS_TOL):
             # (FLAT_ITERS) every iteration counts here, accepted or rejected (a point
             # taken again on central differences too: its new Jacobian is a new try)
             f_now = 0.5 * float(step.r0 @ step.r0)
@@ -347,7 +339,7 @@ class GaussNewtonSQP(MeritLineSearch):
                 st.flat += 1
                 # ... and only on an undamped step that itself promises little: the
                 # gain the linearisation still sees is then below FLAT_PROMISE
-                if st.flat >= self.flat_iters and st.lm == 0 and step.moves < FLAT_PROMISE:
+                if st.flat >= gn.flat_iters and st.lm == 0 and step.moves < gn.flat_promise:
                     log.debug("GN it %d: ½χ² %.8g within %.2g of %.8g for %d iterations at |g| < %.0e: %s",
                               st.it, f_now, st.flat_tol, st.flat_ref, st.flat, feas_tol, STALLED)
                     st.status, st.success = STALLED, True
@@ -359,7 +351,8 @@ class GaussNewtonSQP(MeritLineSearch):
     def _gave_up(self, st: SolveState, step: Iteration) -> bool:
         """Whether the caller's give_up (near continuity; give_up_far elsewhere) stops the
         solve at an undamped step (GAVE_UP): the rest cannot matter to it."""
-        ask = self.give_up if self.give_up is not None and step.feas0 < self.give_up_feas else self.give_up_far
+        near = step.feas0 < self.opts.stop.give_up_feas
+        ask = self.give_up if self.give_up is not None and near else self.give_up_far
         r0, dr = step.r0, step.dr
         if st.lm == 0 and ask is not None and ask(st.it, 0.5 * float(r0 @ r0), -float(r0 @ dr + 0.5 * dr @ dr)):
             st.status = GAVE_UP
@@ -437,7 +430,7 @@ class GaussNewtonSQP(MeritLineSearch):
             st.status, st.success = "Solve_Succeeded", True
             return True
         st.stalled = st.stalled + 1 if phi0 - phi1 < step.stat_tol else 0
-        if st.stalled >= STALL_ITERS:
+        if st.stalled >= self.opts.stop.stall_iters:
             if lm_step > 0:  # judged on the undamped step, as a damped convergence is
                 st.status, st.success = self._stalled_undamped(st.it, step.r0, step.Jr, step.Jg, step.grad, step.g0,
                                                                step.free, "Stalled")
@@ -488,5 +481,5 @@ class GaussNewtonSQP(MeritLineSearch):
         feas = float(np.abs(g).max()) if g.size else 0.0
         log.debug("GN it %d: stalled at |g| %.2e, 1/2 chi2 %.3g from the model's solution%s",
                   it, feas, left, " (damped step)" if damped else "")
-        ok = not damped and feas < self.stall_feas and left < self.stall_tol
+        ok = not damped and feas < self.opts.stop.stall_feas and left < self.opts.stop.stall_tol
         return (STALLED, True) if ok else ("Stalled", False)

@@ -89,7 +89,7 @@ class MeritLineSearch:
         less than the stall tolerance, else the damping raised a rung. Whether the solve
         ends (judged like a stall: at the ladder's top, or when no rung could change the step)."""
         it = st.it
-        if st.lm == 0 and step.feas0 < self.stall_feas and step.moves < self.stall_tol:
+        if st.lm == 0 and step.feas0 < self.opts.stop.stall_feas and step.moves < self.opts.stop.stall_tol:
             # the whole (undamped) step promises less than the stall tolerance: no rung
             # of the damping ladder can gain more, and the stall rule would judge the
             # point reached within tolerance after climbing it (measured: four rungs,
@@ -106,7 +106,8 @@ class MeritLineSearch:
                   it, step.phi0, step.dphi, np.max(np.abs(step.d)), float(np.max(st.nu, initial=0.0)), st.lm, reach,
                   moves_step)
         st.lm = max(10 * st.lm, 1e-3)
-        if st.lm > 1e8 or (reach < self.ladder_reach and moves_step < self.ladder_step):
+        gn = self.opts.gauss_newton
+        if st.lm > 1e8 or (reach < gn.ladder_reach and moves_step < gn.ladder_step):
             # no step gains along any damping (or none the rest of the ladder
             # could give differs enough): judged like a stall, on the undamped
             # step (a candidate's refit that cannot move further but whose Δnll

@@ -18,15 +18,7 @@ import casadi as ca
 import numpy as np
 
 from identify import interrupts
-from identify.fitting.convergence import (
-    FEAS_TOL,
-    LOOSE_FEAS_TOL,
-    LOOSE_STAT_TOL,
-    STALL_ITERS,
-    STALLED,
-    STAT_TOL,
-    bounded_step,
-)
+from identify.fitting.convergence import STALLED, bounded_step
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +72,7 @@ class _IpoptConvergence(ca.Callback):
         self.converged = self.status = self.best = None
         self.since = 0
         self.lbx = self.ubx = None
-        self.stat_tol, self.feas_tol = STAT_TOL, FEAS_TOL
+        self.stat_tol, self.feas_tol = problem.opts.stop.stat_tol, problem.opts.stop.feas_tol
         self.construct("ipopt_convergence", {})
 
     def start(self, lbx, ubx, stat_tol: float, feas_tol: float):
@@ -141,7 +133,8 @@ class _IpoptConvergence(ca.Callback):
         if moves < self.stat_tol:
             self.converged, self.status = w, "Solve_Succeeded"
             return [1]
-        if self.since >= STALL_ITERS and feas < self.problem.stall_feas and moves < self.problem.stall_tol:
+        stop = self.problem.opts.stop
+        if self.since >= stop.stall_iters and feas < stop.stall_feas and moves < stop.stall_tol:
             # the iterates no longer gain and the linearisation puts the solution within
             # the stall tolerance: the SQP's Stalled_Within_Tolerance (a step along the
             # model crosses one of the arcs' kinks, where no line search gains)
@@ -171,7 +164,7 @@ class IpoptSolver:
             oracle, print_time=False, calc_lam_p=False, calc_multipliers=False, error_on_fail=False,
             iteration_callback=self._ipopt_test,
             ipopt={"print_level": 0, "sb": "yes", "max_iter": opts.max_iter, "tol": opts.tol,
-                   "hessian_approximation": "exact",
+                   "hessian_approximation": "exact", **opts.ipopt.nlpsol_options(),
                    # (the iteration log, for the restoration iterations: CasADi's
                    # stats do not say which iterations were restoration ones)
                    "output_file": self._ipopt_log.path, "file_print_level": 5},
@@ -185,8 +178,9 @@ class IpoptSolver:
         spent 95 more at inf_du 8.6e-4 with the line search taking steps of 1e-12)."""
         lbx, ubx = self.bounds(fixed)
         test = self._ipopt_test
-        test.start(lbx, ubx, LOOSE_STAT_TOL if loose else self.stat_tol,
-                   LOOSE_FEAS_TOL if loose else self.feas_tol)
+        stop = self.opts.stop
+        test.start(lbx, ubx, stop.loose_stat_tol if loose else stop.stat_tol,
+                   stop.loose_feas_tol if loose else stop.feas_tol)
         t0 = time.perf_counter()
         mark = self._ipopt_log.mark()
         sol = self.ipopt(x0=np.clip(w0, lbx, ubx), lbx=lbx, ubx=ubx, lbg=0, ubg=0)

@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 from identify.fitting.arcs import ARC_ABSTOL, ARC_RELTOL
+from identify.fitting.solver_options import SOLVER_FIELDS, GaussNewtonOptions, IpoptOptions, StopOptions
 from identify.model.laws import get_law
 from identify.model.params import spec
 from identify.model.plausible import check_parameters
 from identify.model.symbolic import Model
 
 DEFAULT_FREE = ("mu_max", "mu_min", "tau", "A")
+SEQUENCE_PASSES = ("triggers", "missed", "batch", "ambiguous", "misfit")
 
 
 class FitError(ValueError):
@@ -76,6 +78,12 @@ class FitOptions:
     staged_start : bool
         Start from the trigger and slip-length stages of :mod:`identify.fitting.start`.
     max_iter, tol : iteration limit; tolerance on the relative step and feasibility.
+    stop : StopOptions
+        When a solve has converged (both solvers): the statistical test's tolerances.
+    gauss_newton : GaussNewtonOptions
+        The Gauss–Newton SQP's own search and stopping rules.
+    ipopt : IpoptOptions
+        What Ipopt is told besides ``max_iter`` and ``tol``.
     threads : int
         Threads for the arc evaluations.
     multistart : int
@@ -97,6 +105,13 @@ class FitOptions:
         local changes where the model's triggers misfit, each a short re-solve of the
         changed run alone with the parameters held; a kept change is solved jointly);
         0 turns it off. Data whose triggers fit pay none.
+    sequence_passes : tuple of str
+        The mode-sequence repairs the fit makes, of ``triggers`` (slip triggers moved
+        where their residuals put them), ``missed`` (slips the detection missed
+        inserted), ``batch`` (a run's many triggers a step off moved in one trial),
+        ``ambiguous`` (the other step of triggers the frames leave ambiguous tried) and
+        ``misfit`` (local changes where triggers still misfit, ``sequence_trials`` of
+        them). Default all; ``()`` fits the sequence as detected.
     scale_covariance : bool
         Scale the model-based covariance by the reduced χ² (lmfit's default).
     free_phase : bool
@@ -168,6 +183,7 @@ class FitOptions:
     threads: int = 2
     multistart: int = 0
     sequence_trials: int = 64
+    sequence_passes: tuple = SEQUENCE_PASSES
     seed: int | None = None
     scale_covariance: bool = True
     covariance: str = "robust"
@@ -177,6 +193,35 @@ class FitOptions:
     stick_speed: str = "check"
     auto_starts: int = 4
     check_platform: bool = True
+    stop: StopOptions = field(default_factory=StopOptions)
+    gauss_newton: GaussNewtonOptions = field(default_factory=GaussNewtonOptions)
+    ipopt: IpoptOptions = field(default_factory=IpoptOptions)
+
+    def evolve(self, **changes) -> FitOptions:
+        """A copy with ``changes``: the options' own fields, or a field of ``stop``,
+        ``gauss_newton`` or ``ipopt`` by its name (``evolve(stall_tol=1.0, max_iter=20)``).
+
+        Raises
+        ------
+        ValueError
+            For a name that is no option's field (the message names it).
+        """
+        own = {f.name for f in fields(self)}
+        nested = {"stop": {}, "gauss_newton": {}, "ipopt": {}}
+        top = {}
+        for name, value in changes.items():
+            owner = [attr for attr, cls in _NESTED.items() if name in SOLVER_FIELDS[cls]]
+            if name in own:
+                top[name] = value
+            elif owner:
+                nested[owner[0]][name] = value
+            else:
+                raise ValueError(f"{name!r} is not a field of FitOptions, StopOptions, GaussNewtonOptions "
+                                 "or IpoptOptions")
+        for attr, sub in nested.items():
+            if sub:
+                top[attr] = replace(top.get(attr, getattr(self, attr)), **sub)
+        return replace(self, **top)
 
     def __post_init__(self):
         get_law(self.law)
@@ -219,6 +264,12 @@ class FitOptions:
             raise ValueError(f"auto_starts = {self.auto_starts!r}: must be >= 0")
         if self.sequence_trials < 0:
             raise ValueError(f"sequence_trials = {self.sequence_trials!r}: must be >= 0")
+        passes = tuple(self.sequence_passes)
+        object.__setattr__(self, "sequence_passes", passes)
+        unknown = [p for p in passes if p not in SEQUENCE_PASSES]
+        if unknown:
+            raise ValueError(f"sequence_passes: {', '.join(map(repr, unknown))} is not a pass; choose from "
+                             f"{', '.join(SEQUENCE_PASSES)}")
         if self.arc_jacobian not in ("forward", "central", "exact"):
             raise ValueError(f"arc_jacobian = {self.arc_jacobian!r}: choose 'forward', 'central' or 'exact'")
         if self.arc_start not in ("aged", "mid"):
@@ -232,5 +283,13 @@ class FitOptions:
             raise ValueError(f"covariance = {self.covariance!r}: choose 'robust', 'cluster' or 'model'")
         if self.solver not in ("gauss-newton", "ipopt"):
             raise ValueError(f"solver = {self.solver!r}: choose 'gauss-newton' or 'ipopt'")
+        for attr, cls in _NESTED.items():
+            if not isinstance(getattr(self, attr), cls):
+                raise ValueError(f"{attr} = {getattr(self, attr)!r}: must be a {cls.__name__}")
         if self.stick_speed not in ("check", "auto", "off"):
             raise ValueError(f"stick_speed = {self.stick_speed!r}: choose 'check', 'auto' or 'off'")
+
+
+_NESTED = {"stop": StopOptions, "gauss_newton": GaussNewtonOptions, "ipopt": IpoptOptions}
+# (evolve routes a field's name to the options that own it: the names must be unique)
+assert len({n for names in SOLVER_FIELDS.values() for n in names}) == sum(map(len, SOLVER_FIELDS.values()))

@@ -49,6 +49,7 @@ geometry, the numerics and the statistics.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Mapping, Sequence
 
@@ -340,6 +341,19 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
         return lbx, ubx
 
     # ---------------------------------------------------------------- solvers
+    @contextlib.contextmanager
+    def tuned(self, **changes):
+        """The problem's options changed for the solves inside the ``with`` block
+        (:meth:`identify.fitting.options.FitOptions.evolve`: ``prob.tuned(stall_tol=1.0)``),
+        restored after it. Ipopt's own options are taken when its solver is built, so
+        changing them here has no effect on a built problem."""
+        before = self.opts
+        self.opts = before.evolve(**changes)
+        try:
+            yield self
+        finally:
+            self.opts = before
+
     def solve(self, w0: np.ndarray, fixed: Mapping[int, float] | None = None, loose: bool = False) -> dict:
         """Solve from ``w0`` (the Gauss–Newton SQP, or Ipopt). ``loose``: to the
         tolerances a mode-sequence decision needs (``LOOSE_STAT_TOL``, ``LOOSE_FEAS_TOL``),

@@ -136,6 +136,8 @@ def ambiguous_triggers(prob, best, model, values, opts, say):
     Returns (problem, solution, slips moved)."""
     from identify.traces.events import AMBIGUOUS_RSS
 
+    if "ambiguous" not in opts.sequence_passes:
+        return prob, best, 0
     cands = []
     for i, r in enumerate(prob.runs):
         if r.kind != "events":
@@ -240,7 +242,7 @@ def batch_triggers(prob, best, model, values, opts, say):
     by :data:`BATCH_GAIN` per slip moved. The passes after it still try whatever
     misfits. Returns (problem, solution, slips moved); the whole problem is left to
     be solved by the misfit pass (its ``unsolved``)."""
-    if int(opts.sequence_trials) <= 0 or not prob.E:
+    if int(opts.sequence_trials) <= 0 or "batch" not in opts.sequence_passes or not prob.E:
         return prob, best, 0
     shifts = _predicted_shifts(prob, prob.residuals(best["w"]))
     short = held_options(replace(opts, max_iter=TRIAL_ITER))
@@ -378,7 +380,7 @@ def misfit_triggers(prob, best, model, values, opts, say, unsolved: bool = False
     parameters (the ambiguous pass's), so the whole problem is solved at the end even
     if this pass keeps nothing. Returns (problem, solution, counts by kind)."""
     counts = dict(moved=0, inserted=0, removed=0)
-    budget = int(opts.sequence_trials)
+    budget = int(opts.sequence_trials) if "misfit" in opts.sequence_passes else 0
     r_now = prob.residuals(best["w"])
     flagged = _flagged(prob, r_now) if budget > 0 else []
     if not flagged:

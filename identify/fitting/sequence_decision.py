@@ -14,6 +14,11 @@ from identify.fitting.suspect import NOISE_P, suspect_reason
 log = logging.getLogger(__name__)
 
 
+def _missed(prob, w, passes) -> tuple[dict, int]:
+    """The missed slips to insert at ``w``, when the ``missed`` pass is on."""
+    return missed_slips(prob, w) if "missed" in passes else ({}, 0)
+
+
 def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_start: dict | None = None):
     """The mode sequence decided against the model from a solution ``best`` of ``prob``:
     triggers the model places a step or two off moved (the frames taken while the block
@@ -36,13 +41,14 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
     refined = inserted = 0
     restarts: list[dict] = []  # the solves after inserted slips (after_insertion)
     prob0, best0 = prob, best
-    for round_ in range(6):
-        changes, n_moved = prob.refine_triggers(best["w"])
+    passes = opts.sequence_passes
+    for round_ in range(6 if {"triggers", "missed"} & set(passes) else 0):
+        changes, n_moved = prob.refine_triggers(best["w"]) if "triggers" in passes else ({}, 0)
         n_added = 0
         if n_moved == 0:
-            changes, n_added = missed_slips(prob, best["w"])
+            changes, n_added = _missed(prob, best["w"], passes)
         elif round_ == 0:
-            changes, n_moved, n_added = with_insertions(prob, changes, n_moved, *missed_slips(prob, best["w"]))
+            changes, n_moved, n_added = with_insertions(prob, changes, n_moved, *_missed(prob, best["w"], passes))
         if round_ > 0 and n_moved + n_added == 0:
             break
         refined += n_moved

@@ -37,7 +37,7 @@ def test_information_matches_finite_differences():
     # differences of re-solved residuals over h = 1e-3 need the re-solves exact: a
     # re-solve stopped within NEAR_TOL leaves residuals off by up to ~0.03, which over 2h
     # is ~15 in a column (measured: 3676 off in JᵀJ against the 402 allowed)
-    prob.near_tol = 0.0
+    prob.opts = prob.opts.evolve(near_tol=0.0)
 
     def profiled(th):
         w1 = w.copy()

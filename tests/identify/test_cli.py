@@ -1,6 +1,7 @@
 """The identify CLI: simulate writes the trace and the summary; bad input exits 2 with one
 line naming the parameter and the rule, never a traceback."""
 
+import pathlib
 import subprocess
 import sys
 
@@ -106,6 +107,25 @@ def test_an_error_raised_on_purpose_blames_the_input(capsys):
     code = cli.main(["fit", "/no/such/folder/anywhere", "--json", "unused.json"])
     err = capsys.readouterr().err
     assert code == 2 and "error: /no/such/folder/anywhere" in err and "internal" not in err
+
+
+def test_sequence_passes_are_read_and_a_bad_one_is_named(capsys):
+    import argparse
+
+    import identify.cli as cli
+
+    def options(text):
+        ns = argparse.Namespace(free=None, fix=None, bound=None, start=None, law=None, free_offset=False,
+                                multistart=0, seed=None, solver="gauss-newton", trigger="uniform",
+                                sequence_trials=None, sequence_passes=text, stick_speed="check")
+        return cli._fit_options(ns).sequence_passes
+
+    assert options(None) == ("triggers", "missed", "batch", "ambiguous", "misfit")
+    assert options("none") == () and options("misfit, batch") == ("misfit", "batch")
+    data = str(pathlib.Path(__file__).resolve().parents[2] / "data" / "FOTAS")
+    code = cli.main(["fit", data, "--sequence-passes", "triggers,bogus", "--json", "unused.json"])
+    err = capsys.readouterr().err
+    assert code == 2 and "'bogus' is not a pass" in err and "Traceback" not in err
 
 
 def test_fit_of_only_bad_runs_names_each_file_once(tmp_path, capsys):

@@ -2,6 +2,8 @@
 on a stand-in problem whose χ² there is set by the test: fits as well (absorbed, with the
 parameters it moves as partners), excluded, or better than the refit itself."""
 
+import contextlib
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,6 +45,15 @@ class _Problem:
 
     def chi2_constant(self):
         return 0.0
+
+    @contextlib.contextmanager
+    def tuned(self, **changes):  # (as Problem.tuned)
+        before = self.opts
+        self.opts = dataclasses.replace(before, **changes)
+        try:
+            yield self
+        finally:
+            self.opts = before
 
     def solve(self, w0, fixed):
         self.fixed_seen = dict(fixed)

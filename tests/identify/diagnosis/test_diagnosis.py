@@ -598,7 +598,7 @@ def test_the_topography_candidate_starts_from_every_leading_ripple(small_fit, mo
 
     def spy_screen(p, w0, f0, nameable=None):
         half_null = 0.5 * (tasks[1].null_chi2 - p.chi2_constant())  # no gain at all
-        screens.append((p.give_up_feas, p.give_up(cand.BASIN_GIVE_UP_AFTER + 1, half_null, 0.0),
+        screens.append((p.opts.stop.give_up_feas, p.give_up(cand.BASIN_GIVE_UP_AFTER + 1, half_null, 0.0),
                         p.give_up(cand.BASIN_GIVE_UP_AFTER, half_null, 0.0)))
         return spy(p, w0, f0, nameable)
 
@@ -1364,12 +1364,12 @@ def test_a_candidate_refit_stalled_near_continuity_counts_as_converged(small_fit
                    n_theta=prob.n_theta, chi2=1.0, n_eff=prob.n_effective())
     (_, task), _ = candidate_tasks(("drift",), current, prob.runs, prob.opts, [], DiagnosisOptions(), 1, [])
     cand = candidate_problem(task, tuple(prob.theta.names) + ("drift_rate",))
-    assert (cand.stall_feas, cand.stall_tol) == (GIVE_UP_FEAS, ROUND_GAIN)
-    assert (prob.stall_feas, prob.stall_tol) != (cand.stall_feas, cand.stall_tol)
+    assert (cand.opts.stop.stall_feas, cand.opts.stop.stall_tol) == (GIVE_UP_FEAS, ROUND_GAIN)
+    assert (prob.opts.stop.stall_feas, prob.opts.stop.stall_tol) != (GIVE_UP_FEAS, ROUND_GAIN)
     r, Jr, d, g = np.array([1.0]), sp.csr_matrix([[0.0]]), np.zeros(1), np.array([1.03e-4])
     judge = lambda p: Problem._stalled(p, 14, r, Jr, d, g, damped=False)  # noqa: E731
-    assert judge(SimpleNamespace(stall_feas=STALL_FEAS, stall_tol=ROUND_GAIN))[1] is False
-    assert judge(SimpleNamespace(stall_feas=GIVE_UP_FEAS, stall_tol=ROUND_GAIN)) == (STALLED, True)
+    assert judge(SimpleNamespace(opts=prob.opts.evolve(stall_feas=STALL_FEAS, stall_tol=ROUND_GAIN)))[1] is False
+    assert judge(cand) == (STALLED, True)
 
 
 def test_a_singular_held_out_step_with_non_finite_entries_is_no_step(monkeypatch):

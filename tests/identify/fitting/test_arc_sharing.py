@@ -131,7 +131,7 @@ def test_the_fit_ends_on_the_covariances_central_differences(small, monkeypatch)
     assert end["success"] and end["iterations"] == 1
 
 
-def test_a_rejected_step_on_shared_differences_is_taken_again_on_each_arcs_own(small, monkeypatch):
+def test_a_rejected_step_on_shared_differences_is_taken_again_on_each_arcs_own(small, monkeypatch, tune):
     """A full step on shared differences that fails is computed again at the same point
     on each arc's own forward differences, and then, failing again from a feasible point,
     on central ones (the rung before the sharing): with the forward rows of the wrong
@@ -140,11 +140,11 @@ def test_a_rejected_step_on_shared_differences_is_taken_again_on_each_arcs_own(s
     res = small[True]
     prob, w = res.problem, res.w.copy()
     w[0] += 1e-3
-    monkeypatch.setattr(prob, "near_tol", 0.0)  # (only the tight convergence rule)
-    monkeypatch.setattr(prob, "flat_iters", 0)
+    tune(prob, near_tol=0.0)  # (only the tight convergence rule)
+    tune(prob, flat_iters=0)
     prob.jacobian_scheme("central", arcs_mod.SOLVE_REL_STEP)
     w = prob.solve_gn(w, fixed={0: w[0]})["w"]  # feasible, μmax held off
-    assert np.abs(prob.evaluate(w)[1]).max() < prob.feas_tol
+    assert np.abs(prob.evaluate(w)[1]).max() < prob.opts.stop.feas_tol
     prob.jacobian_scheme("forward", arcs_mod.SOLVE_REL_STEP)
     assert prob._cb_jac_shared()
     flipped = _ForwardFlipped(prob._cb_jac.arcs)

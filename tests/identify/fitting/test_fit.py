@@ -94,11 +94,9 @@ def test_a_loose_solve_stops_where_a_sequence_decision_can_and_the_fit_ends_tigh
     assert prob._violation(loose["w"]) < conv.LOOSE_FEAS_TOL
     assert abs(loose["f"] - tight["f"]) < 0.1
     # the rule is the loose solve's own: with tolerances nothing fails, it stops at once
-    monkeypatch.setattr(gn, "LOOSE_STAT_TOL", 1e9)
-    monkeypatch.setattr(gn, "LOOSE_FEAS_TOL", 1e9)
-    assert prob.solve(w0, loose=True)["iterations"] == 1 < tight["iterations"]
-    assert prob.solve(w0)["iterations"] == tight["iterations"]
-    monkeypatch.undo()
+    with prob.tuned(loose_stat_tol=1e9, loose_feas_tol=1e9):
+        assert prob.solve(w0, loose=True)["iterations"] == 1 < tight["iterations"]
+        assert prob.solve(w0)["iterations"] == tight["iterations"]
     # every solve fit() makes is recorded: the last one, whose solution it reports, is full
     calls = []
     solve = Problem.solve
@@ -422,8 +420,6 @@ def test_an_ambiguous_trigger_is_tried_at_its_other_step(small_traces, margin, m
 
     from identify.traces.events import extract_events
 
-    monkeypatch.setattr(Problem, "refine_triggers", lambda self, w, **kw: ({}, 0))
-    monkeypatch.setattr("identify.fitting.sequence_decision.missed_slips", lambda prob, w: ({}, 0))
 
     evs = [extract_events(t) for t in small_traces]
     j = len(evs[0].slips["trigger_step"]) // 2
@@ -433,7 +429,7 @@ def test_an_ambiguous_trigger_is_tried_at_its_other_step(small_traces, margin, m
     # two parameters from the truth keep it quick; the pass is the same for four
     res = fit([late, evs[1]], progress=said.append, options=FitOptions(
         fixed={"v_stick": V_STICK}, free=("mu_min", "A"), start={"mu_min": truth["mu_min"], "A": truth["A"]},
-        staged_start=False, sequence_trials=0))
+        staged_start=False, sequence_trials=0, sequence_passes=("batch", "ambiguous", "misfit")))
     tried = [m for m in said if "tried at" in m]
     steps = res.problem.runs[0].trigger_steps
     if np.isfinite(margin):
@@ -528,19 +524,15 @@ def test_predicted_shifts_follow_the_trigger_residuals():
 def test_many_late_triggers_are_moved_in_one_trial(small_traces, monkeypatch, run, batch):
     """Three slips a step late in one run (the 10-run speed benchmark's 3σ run had 16).
     In the 2.13 N/m run (16 slips) their residuals read -1 step each, and the batch
-    trial moves all three back at once, where with the batch off (BATCH_MIN above three)
+    trial moves all three back at once, where with the batch pass off
     the passes after it take a kept trial each. In the 20.3 N/m, 30 Hz run (a slip every
     ~36 steps, 12 in all) three wrong slips bend the run's fit until their residuals read
     +2 steps: the batch trial raises χ², is not kept, and the passes still repair the
     sequence."""
 
-    import identify.fitting.sequence as seq
     from identify.traces.events import extract_events
 
-    monkeypatch.setattr(Problem, "refine_triggers", lambda self, w, **kw: ({}, 0))
-    monkeypatch.setattr("identify.fitting.sequence_decision.missed_slips", lambda prob, w: ({}, 0))
-    if batch == "off":
-        monkeypatch.setattr(seq, "BATCH_MIN", 4)
+    passes = ("ambiguous", "misfit") if batch == "off" else ("batch", "ambiguous", "misfit")
     evs = [extract_events(t) for t in small_traces]
     true = np.asarray(evs[run].slips["trigger_step"], int)
     late = [len(true) // 4, len(true) // 2, 3 * len(true) // 4]
@@ -550,7 +542,7 @@ def test_many_late_triggers_are_moved_in_one_trial(small_traces, monkeypatch, ru
     said = []
     res = fit(runs, progress=said.append, options=FitOptions(
         fixed={"v_stick": V_STICK}, free=("mu_min", "A"), start={"mu_min": truth["mu_min"], "A": truth["A"]},
-        staged_start=False))
+        staged_start=False, sequence_passes=passes))
     np.testing.assert_array_equal(res.problem.runs[run].trigger_steps, true)
     assert res.solver["triggers_moved"] >= len(late)
     # the frames that count changed with the sequence: the report says so, beside the count
@@ -760,8 +752,6 @@ def test_a_wrong_slip_is_repaired_where_its_trigger_misfits(small_traces, error,
 
     from identify.traces.events import extract_events
 
-    monkeypatch.setattr(Problem, "refine_triggers", lambda self, w, **kw: ({}, 0))
-    monkeypatch.setattr("identify.fitting.sequence_decision.missed_slips", lambda prob, w: ({}, 0))
     evs = [extract_events(t) for t in small_traces]
     true = np.asarray(evs[1].slips["trigger_step"], int)
     j = len(true) // 2
@@ -772,7 +762,7 @@ def test_a_wrong_slip_is_repaired_where_its_trigger_misfits(small_traces, error,
     truth = parameter_set("FOTAS")
     res = fit([evs[0], _detected_at(evs[1], wrong)], progress=said.append, options=FitOptions(
         fixed={"v_stick": V_STICK}, free=("mu_min", "A"), start={"mu_min": truth["mu_min"], "A": truth["A"]},
-        staged_start=False, sequence_trials=trials))
+        staged_start=False, sequence_trials=trials, sequence_passes=("batch", "ambiguous", "misfit")))
     if not trials:
         np.testing.assert_array_equal(res.problem.runs[1].trigger_steps, wrong)
         return
@@ -792,11 +782,8 @@ def _polished(small_fit) -> np.ndarray:
     if getattr(small_fit, "_polished_w", None) is None:
         prob = small_fit.problem
         prob.jacobian_scheme(prob.opts.arc_jacobian, arcs_mod.SOLVE_REL_STEP, share=False)
-        prob.near_tol = 0.0
-        try:
+        with prob.tuned(near_tol=0.0):
             small_fit._polished_w = prob.solve_gn(small_fit.w.copy())["w"]
-        finally:
-            del prob.near_tol  # (the class's again)
     return small_fit._polished_w.copy()
 
 
@@ -870,7 +857,7 @@ def _violate(prob, w, g_at_w, monkeypatch):
     monkeypatch.setattr(prob, "evaluate", noisy)
 
 
-def test_a_violation_at_the_arcs_noise_does_not_hold_a_converged_solve(small_fit, monkeypatch):
+def test_a_violation_at_the_arcs_noise_does_not_hold_a_converged_solve(small_fit, monkeypatch, tune):
     """At the solution, the constraints violated by 0.9 pm (inside FEAS_TOL, the size of
     the arcs' integration noise), each against its multiplier's sign: the step that removes
     it barely moves the model (½‖Jᵣd‖² < stat_tol), though its predicted gain −½∇f·d
@@ -880,7 +867,7 @@ def test_a_violation_at_the_arcs_noise_does_not_hold_a_converged_solve(small_fit
 
     prob, w = small_fit.problem, _polished(small_fit)
     prob.jacobian_scheme(prob.opts.arc_jacobian, arcs_mod.SOLVE_REL_STEP, share=False)
-    _strict(prob, monkeypatch)  # (the tight rule is this test's subject)
+    _strict(prob, tune)  # (the tight rule is this test's subject)
     # the violation at w 0.9 FEAS_TOL against each multiplier's sign, the fit's own taken
     # out: the promise then carries ½Σ|λ|·0.9 FEAS_TOL
     lam = _gn_step(prob, w)[3]
@@ -889,14 +876,14 @@ def test_a_violation_at_the_arcs_noise_does_not_hold_a_converged_solve(small_fit
     promises = -0.5 * grad_d
     assert feas < conv.FEAS_TOL
     # the case this is about: the old test (the promise) would go on, the new one stops
-    assert moves < prob.stat_tol < promises, (moves, promises)
+    assert moves < prob.opts.stop.stat_tol < promises, (moves, promises)
     res = prob.solve_gn(w)
     assert res["status"] == "Solve_Succeeded" and res["iterations"] == 1
     assert np.array_equal(res["w"], w)
 
 
 @pytest.mark.parametrize("which, violation", [("weakest", 5e-6), ("strongest", 5e-5)])
-def test_a_step_that_barely_moves_the_model_ends_the_solve_above_feas_tol(small_fit, monkeypatch, which,
+def test_a_step_that_barely_moves_the_model_ends_the_solve_above_feas_tol(small_fit, monkeypatch, tune, which,
                                                                           violation):
     """NEAR_TOL: at a point feasible to STALL_FEAS but not FEAS_TOL, a step that would move
     the model by less than NEAR_TOL of ½χ² and change ½χ² (restoring continuity
@@ -923,7 +910,7 @@ def test_a_step_that_barely_moves_the_model_ends_the_solve_above_feas_tol(small_
     if stops:
         assert res["status"] == "Solve_Succeeded" and res["iterations"] == 1
         assert np.array_equal(res["w"], w)
-        _strict(prob, monkeypatch)  # and not without the rule
+        _strict(prob, tune)  # and not without the rule
         # without it the step is not even tried: the merit weighs that constraint by its own
         # (smallest) multiplier, so restoring it gains less than stat_tol, and the solve is
         # judged a stall on its undamped step, within tolerance; not converged at once
@@ -933,7 +920,7 @@ def test_a_step_that_barely_moves_the_model_ends_the_solve_above_feas_tol(small_
         assert res["iterations"] > 1
 
 
-def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, monkeypatch):
+def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, monkeypatch, tune):
     """FLAT_ITERS: at the solution, the residuals' Jacobian off by 20 % per entry (new noise
     each time), so every step promises what the function does not give, as the arcs'
     Jacobian noise did in the 5-run speed benchmark's tail (16 iterations, ~100 s, for
@@ -942,7 +929,7 @@ def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, 
 
     prob, w = small_fit.problem, _polished(small_fit)
     _on_central(prob)  # (no switch from forward differences in between)
-    monkeypatch.setattr(prob, "near_tol", 0.0)
+    tune(prob, near_tol=0.0)
     true_evaluate = prob.evaluate
     rng = np.random.default_rng(0)
 
@@ -957,7 +944,7 @@ def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, 
     monkeypatch.setattr(prob, "evaluate", noisy)
     half = lambda x: 0.5 * float(np.sum(true_evaluate(x)[0] ** 2))  # noqa: E731
     feas, moves, grad_d, _ = _gn_step(prob, w)
-    assert feas < prob.feas_tol and moves > prob.stat_tol  # (the tight rule cannot stop it)
+    assert feas < prob.opts.stop.feas_tol and moves > prob.opts.stop.stat_tol  # (the tight rule cannot stop it)
     res = prob.solve_gn(w)
     assert (res["status"], res["success"]) == (conv.STALLED, True)
     assert res["iterations"] == gn.FLAT_ITERS + 1
@@ -965,12 +952,12 @@ def test_a_solve_that_no_longer_lowers_chi2_at_a_feasible_point_ends(small_fit, 
     # without the rule the solve does not end there judged converged: it goes on, or
     # (from the fit's point once the arcs' differences were shared) the stall rule ends it
     # at the same iteration as not converged ("Stalled")
-    monkeypatch.setattr(prob, "flat_iters", 0)
+    tune(prob, flat_iters=0)
     res = prob.solve_gn(w)
     assert res["iterations"] > gn.FLAT_ITERS + 1 or not res["success"], res["status"]
 
 
-def test_the_flat_tail_rule_leaves_a_step_that_still_promises_much_to_the_ladder(small_fit, monkeypatch):
+def test_the_flat_tail_rule_leaves_a_step_that_still_promises_much_to_the_ladder(small_fit, monkeypatch, tune):
     """FLAT_PROMISE: at a feasible point with μmax off (held there, then freed), every
     trial point worse: ½χ² does not fall for many iterations, but the undamped step
     promises more than FLAT_PROMISE, so the flat-tail rule does not call it converged;
@@ -978,14 +965,14 @@ def test_the_flat_tail_rule_leaves_a_step_that_still_promises_much_to_the_ladder
 
     prob, w = small_fit.problem, _polished(small_fit)
     _on_central(prob)
-    monkeypatch.setattr(prob, "near_tol", 0.0)
+    tune(prob, near_tol=0.0)
     w[0] += 1e-2
     w = prob.solve_gn(w, fixed={0: w[0]})["w"]  # feasible, μmax held off
     feas, moves, _, _ = _gn_step(prob, w)
     assert feas < conv.FEAS_TOL and moves > gn.FLAT_PROMISE, (feas, moves)
     _worse_away_from(w, prob, monkeypatch)
     on = prob.solve_gn(w)
-    monkeypatch.setattr(prob, "flat_iters", 0)
+    tune(prob, flat_iters=0)
     off = prob.solve_gn(w)
     assert on["iterations"] > gn.FLAT_ITERS + 1
     assert (on["status"], on["success"], on["iterations"]) == (off["status"], off["success"], off["iterations"])
@@ -1039,13 +1026,13 @@ def _on_central(prob):
     prob.jacobian_scheme("central", arcs_mod.SOLVE_REL_STEP)
 
 
-def _strict(prob, monkeypatch):
+def _strict(prob, tune):
     """Only the tight convergence rule (FEAS_TOL, stat_tol): the tests that script the
     solver's other rules start from the fit's solution, which stops within NEAR_TOL and
     would otherwise end their solves at once, or once FLAT_ITERS iterations there have
     not lowered ½χ² (each tested on its own)."""
-    monkeypatch.setattr(prob, "near_tol", 0.0)
-    monkeypatch.setattr(prob, "flat_iters", 0)
+    tune(prob, near_tol=0.0)
+    tune(prob, flat_iters=0)
 
 
 def test_a_solve_whose_line_search_always_fails_does_not_move(small_fit, monkeypatch):
@@ -1058,7 +1045,7 @@ def test_a_solve_whose_line_search_always_fails_does_not_move(small_fit, monkeyp
 
 
 @pytest.mark.parametrize("off", ["plateau", "plateau, parameters held", "mu_max"])
-def test_the_damping_ladder_ends_when_no_damping_can_move_the_step(small_fit, monkeypatch, off):
+def test_the_damping_ladder_ends_when_no_damping_can_move_the_step(small_fit, monkeypatch, off, tune):
     """Every trial point worse; the damping (on the parameters alone) raised tenfold after
     each rejection up to 1e8. Once the rest of the ladder could change what the step
     promises by less than LADDER_REACH of the merit's slope and move the trial points by
@@ -1073,13 +1060,13 @@ def test_the_damping_ladder_ends_when_no_damping_can_move_the_step(small_fit, mo
     prob, w, _ = _off_solution(small_fit)
     _on_central(prob)
     fixed = None
-    _strict(prob, monkeypatch)
+    _strict(prob, tune)
     if off == "mu_max":
         w = _polished(small_fit)
         w[0] += 1e-3
     elif off == "plateau, parameters held":
         fixed = {i: w[i] for i in range(prob.n_theta)}
-    monkeypatch.setattr(prob, "feas_tol", 1.0)
+    tune(prob, feas_tol=1.0)
     _worse_away_from(w, prob, monkeypatch)
     reach = []
     true_reach = prob._damping_reach
@@ -1090,7 +1077,7 @@ def test_the_damping_ladder_ends_when_no_damping_can_move_the_step(small_fit, mo
     assert ends[-1] and not any(ends[:-1]), reach
     assert res["iterations"] == len(reach) == {"plateau": 5, "plateau, parameters held": 1, "mu_max": 10}[off], reach
     # the same judgement as the whole ladder's
-    monkeypatch.setattr(prob, "ladder_reach", 0.0)
+    tune(prob, ladder_reach=0.0)
     full = prob.solve_gn(w, fixed)
     assert full["iterations"] == 13 and (full["status"], full["success"]) == (res["status"], res["success"])
 
@@ -1110,7 +1097,7 @@ class _ForwardFlipped:
         return y, (-J if scheme == "forward" else J)
 
 
-def test_a_step_rejected_on_forward_differences_is_taken_again_on_central(small_fit, monkeypatch):
+def test_a_step_rejected_on_forward_differences_is_taken_again_on_central(small_fit, monkeypatch, tune):
     """Forward differences' error is first-order in the step: measured in the tail of the
     10-run speed benchmark, the trial points' constraint violation grew in proportion to
     α and the damping ladder climbed for ten iterations on a step that central differences
@@ -1122,11 +1109,11 @@ def test_a_step_rejected_on_forward_differences_is_taken_again_on_central(small_
     constraints' curvature, which the second-order correction treats."""
 
     prob, w = small_fit.problem, small_fit.w.copy()
-    _strict(prob, monkeypatch)
+    _strict(prob, tune)
     w[0] += 1e-3
     _on_central(prob)
     w = prob.solve_gn(w, fixed={0: w[0]})["w"]  # feasible, μmax held off
-    assert np.abs(prob.evaluate(w)[1]).max() < prob.feas_tol
+    assert np.abs(prob.evaluate(w)[1]).max() < prob.opts.stop.feas_tol
     prob.jacobian_scheme("forward", arcs_mod.SOLVE_REL_STEP, share=False)
     monkeypatch.setattr(prob._cb_jac, "arcs", _ForwardFlipped(prob._cb_jac.arcs))
     res = prob.solve_gn(w)
@@ -1171,7 +1158,7 @@ def test_a_failed_solve_is_solved_on_central_differences_only_near_continuity(sm
     assert prob._violation(w) < gn.CENTRAL_RESOLVE_FEAS  # (the fit's own end is near continuity)
 
 
-def test_a_step_rejected_within_the_stall_tolerance_ends_the_solve(small_fit, monkeypatch):
+def test_a_step_rejected_within_the_stall_tolerance_ends_the_solve(small_fit, monkeypatch, tune):
     """Every trial point worse, at a feasible point whose undamped step promises less than
     STALL_TOL: no rung of the damping ladder could gain more, and the stall rule would
     judge the point within tolerance once the ladder had climbed (measured: four rungs,
@@ -1186,12 +1173,13 @@ def test_a_step_rejected_within_the_stall_tolerance_ends_the_solve(small_fit, mo
     free = np.nonzero(prob.bounds()[0] < prob.bounds()[1])[0]
     d[free] = conv.kkt_solve((Jr.T @ Jr).tocsc(), Jg, Jr.T @ r, g, free)[: len(free)]
     moves = 0.5 * float((Jr @ d) @ (Jr @ d))
-    assert prob.stat_tol < moves < prob.stall_tol and np.abs(g).max() < prob.stall_feas, moves
+    stop = prob.opts.stop
+    assert stop.stat_tol < moves < stop.stall_tol and np.abs(g).max() < stop.stall_feas, moves
     _worse_away_from(w, prob, monkeypatch)
     res = prob.solve_gn(w)
     assert (res["status"], res["success"], res["iterations"]) == (conv.STALLED, True, 1)
     assert np.array_equal(res["w"], w)
-    monkeypatch.setattr(prob, "stall_tol", 0.5 * moves)  # (the step promises more)
+    tune(prob, stall_tol=0.5 * moves)  # (the step promises more)
     res = prob.solve_gn(w)
     assert res["iterations"] > 1 and not res["success"]
 
@@ -1229,7 +1217,7 @@ def test_no_damping_reaches_a_step_whose_parameters_are_held(small_fit):
     assert max(reach_of(free, lm=1e12)) < 1e-6
 
 
-def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, monkeypatch):
+def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, monkeypatch, tune):
     """At the solution, every trial point made worse: the damping rises until the damped
     step promises less than stat_tol. That is not convergence (the damping grew because
     steps failed); the undamped step decides, by the stall rule."""
@@ -1240,8 +1228,8 @@ def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, mon
     # more than stat_tol (at the solution itself it promises less, and the solve would
     # end "Solve_Succeeded" at once), and damping shrinks the promise
     w[0] += 1e-3
-    monkeypatch.setattr(prob, "feas_tol", 1.0)
-    monkeypatch.setattr(prob, "flat_iters", 0)  # (ended by FLAT_ITERS first at feas_tol 1)
+    tune(prob, feas_tol=1.0)
+    tune(prob, flat_iters=0)  # (ended by FLAT_ITERS first at feas_tol 1)
     _worse_away_from(w, prob, monkeypatch)
     said = []
     monkeypatch.setattr(prob, "_stalled", lambda *a, **kw: said.append(kw) or (conv.STALLED, True))
@@ -1252,7 +1240,7 @@ def test_a_damped_step_that_promises_nothing_is_judged_as_a_stall(small_fit, mon
     assert res["iterations"] > 1 and np.array_equal(res["w"], w)
 
 
-def test_a_line_search_that_fails_at_every_damping_is_judged_as_a_stall(small_fit, monkeypatch):
+def test_a_line_search_that_fails_at_every_damping_is_judged_as_a_stall(small_fit, monkeypatch, tune):
     """A plateau level off: the damping (on the parameters) cannot shrink what the step
     promises, every line search fails up to the largest damping; the undamped step decides
     by the stall rule (measured: a diagnosis refit whose estimate and held-out gap were
@@ -1260,8 +1248,8 @@ def test_a_line_search_that_fails_at_every_damping_is_judged_as_a_stall(small_fi
 
     prob, w, _ = _off_solution(small_fit)
     _on_central(prob)
-    monkeypatch.setattr(prob, "feas_tol", 1.0)  # (the 1 nm violation alone would not stop it)
-    monkeypatch.setattr(prob, "flat_iters", 0)  # (ended by FLAT_ITERS first at feas_tol 1)
+    tune(prob, feas_tol=1.0)  # (the 1 nm violation alone would not stop it)
+    tune(prob, flat_iters=0)  # (ended by FLAT_ITERS first at feas_tol 1)
     _worse_away_from(w, prob, monkeypatch)
     for verdict, status in (((conv.STALLED, True), conv.STALLED), (("Stalled", False), "Line_Search_Failed")):
         said = []
@@ -1271,7 +1259,7 @@ def test_a_line_search_that_fails_at_every_damping_is_judged_as_a_stall(small_fi
         assert np.array_equal(res["w"], w)
 
 
-def test_a_stall_reached_under_damping_is_judged_on_the_undamped_step(small_fit, monkeypatch):
+def test_a_stall_reached_under_damping_is_judged_on_the_undamped_step(small_fit, monkeypatch, tune):
     """Four failed line searches raise the damping to 1; then four accepted steps, taken
     at damping 1, 0.1, 0.01 and 1e-3 (after which it is 0), gain 1e-5 of ½χ² each
     (< stat_tol). That stall is judged on the undamped step at the last step's start, as
@@ -1281,8 +1269,8 @@ def test_a_stall_reached_under_damping_is_judged_on_the_undamped_step(small_fit,
     prob, w = small_fit.problem, small_fit.w.copy()
     _on_central(prob)
     w[0] += 1e-3
-    monkeypatch.setattr(prob, "feas_tol", 1.0)
-    monkeypatch.setattr(prob, "flat_iters", 0)  # (ended by FLAT_ITERS first at feas_tol 1)
+    tune(prob, feas_tol=1.0)
+    tune(prob, flat_iters=0)  # (ended by FLAT_ITERS first at feas_tol 1)
     true_evaluate = prob.evaluate
     seen = dict(jac=0)
 
@@ -1433,6 +1421,7 @@ def test_start_takes_the_reduced_analysis_only_where_it_determines_it(monkeypatc
     (dict(covariance="sandwich"), "robust', 'cluster' or 'model"),
     (dict(trigger="exact"), "'uniform' or 'interval'"),
     (dict(trigger="interval", arc_start="mid"), "needs arc_start = 'aged'"),
+    (dict(sequence_passes=("triggers", "trigger")), "sequence_passes: 'trigger' is not a pass; choose from"),
 ])
 def test_bad_options(kwargs, match):
     with pytest.raises(ValueError, match=match):

@@ -1,0 +1,115 @@
+"""The solvers' options: validated fields, ``FitOptions.evolve`` routing a name to the
+options that own it, ``Problem.tuned`` restoring them, and Ipopt given what it is told."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from identify import (
+    FitOptions,
+    GaussNewtonOptions,
+    IpoptOptions,
+    SimulationOptions,
+    StopOptions,
+    parameter_set,
+    simulate,
+)
+from identify.fitting.convergence import STAT_TOL
+from identify.fitting.problem import Problem
+from identify.fitting.rundata import make_run_data
+from identify.model.laws import get_law
+from identify.model.symbolic import Model
+from identify.traces.events import extract_events
+
+V_STICK = 1e-5
+
+
+def test_the_defaults_are_the_documented_constants():
+    opts = FitOptions()
+    assert opts.stop == StopOptions() and opts.stop.stat_tol == STAT_TOL
+    assert opts.gauss_newton == GaussNewtonOptions() and opts.ipopt == IpoptOptions()
+    assert opts.ipopt.nlpsol_options() == {"mu_strategy": "monotone"}
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: StopOptions(stat_tol=0), r"StopOptions\.stat_tol = 0: must be a finite number > 0"),
+    (lambda: StopOptions(feas_tol=float("nan")), r"StopOptions\.feas_tol"),
+    (lambda: StopOptions(stall_iters=0), r"StopOptions\.stall_iters = 0: must be an integer >= 1"),
+    (lambda: StopOptions(stall_iters=2.5), r"StopOptions\.stall_iters = 2\.5: must be an integer"),
+    (lambda: GaussNewtonOptions(flat_iters=-1), r"GaussNewtonOptions\.flat_iters = -1"),
+    (lambda: GaussNewtonOptions(near_tol=-1e-3), r"GaussNewtonOptions\.near_tol = -0\.001: must be .* >= 0"),
+    (lambda: IpoptOptions(mu_strategy="fast"), r"mu_strategy = 'fast': choose 'monotone' or 'adaptive'"),
+    (lambda: IpoptOptions(extra={"max_iter": 5, "tol": 1}), r"extra sets max_iter, tol, which the toolkit sets"),
+    (lambda: FitOptions(stop={"stat_tol": 1}), r"stop = \{'stat_tol': 1\}: must be a StopOptions"),
+])
+def test_bad_solver_options_name_the_field_and_the_rule(make, match):
+    with pytest.raises(ValueError, match=match):
+        make()
+
+
+def test_evolve_routes_each_name_to_the_options_that_own_it():
+    base = FitOptions(max_iter=50)
+    new = base.evolve(stall_tol=1.0, near_tol=0.0, mu_strategy="adaptive", max_iter=20)
+    assert (new.stop.stall_tol, new.gauss_newton.near_tol, new.ipopt.mu_strategy, new.max_iter) == (
+        1.0, 0.0, "adaptive", 20)
+    # the rest is kept, and the original is untouched (frozen)
+    assert new.stop.stat_tol == base.stop.stat_tol and new.gauss_newton.flat_iters == base.gauss_newton.flat_iters
+    assert base.stop.stall_tol != 1.0 and base.max_iter == 50
+    # a nested object passed whole and a field of it in one call: the field wins
+    both = base.evolve(stop=StopOptions(stat_tol=1e-3), feas_tol=1e-5)
+    assert (both.stop.stat_tol, both.stop.feas_tol) == (1e-3, 1e-5)
+    with pytest.raises(ValueError, match=r"'stall_toll' is not a field of FitOptions"):
+        base.evolve(stall_toll=1.0)
+    with pytest.raises(ValueError, match=r"StopOptions\.stall_tol = -1"):
+        base.evolve(stall_tol=-1)
+
+
+@pytest.fixture(scope="module")
+def one_run_problem():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tr = simulate("FOTAS", spring_constant_N_per_m=2.13, normal_load_uN=5, step_frequency_Hz=100, travel_um=6,
+                      stick_speed_m_per_s=V_STICK, options=SimulationOptions(record=False)).sample(noise_nm=0.0, seed=0)
+    truth = dict(parameter_set("FOTAS"), v_stick=V_STICK)
+    model = Model(get_law("exponential"))
+    values = {**model.defaults(truth), "drift_rate": 0.0, "exposure": 0.0}
+    opts = FitOptions(fixed={"v_stick": V_STICK}, solver="ipopt",
+                      ipopt=IpoptOptions(mu_strategy="adaptive", extra={"print_user_options": "yes"}))
+    prob = Problem([make_run_data(extract_events(tr))], model, values, opts).build()
+    return prob, prob.initial_w({n: truth[n] for n in prob.theta.names})
+
+
+def test_tuned_changes_the_options_for_a_block_and_restores_them(one_run_problem):
+    prob, _ = one_run_problem
+    before = prob.opts
+    with prob.tuned(stall_tol=1.0, max_iter=3) as same:
+        assert same is prob and prob.opts.stop.stall_tol == 1.0 and prob.opts.max_iter == 3
+        with prob.tuned(stall_tol=2.0):
+            assert prob.opts.stop.stall_tol == 2.0 and prob.opts.max_iter == 3
+        assert prob.opts.stop.stall_tol == 1.0
+    assert prob.opts is before
+    with pytest.raises(RuntimeError), prob.tuned(flat_iters=0):
+        raise RuntimeError("a solve that fails")
+    assert prob.opts is before
+
+
+def test_ipopt_is_given_its_options_and_a_solve_follows_the_stop_options(one_run_problem):
+    prob, w = one_run_problem
+    res = prob.solve(w)
+    assert res["solver"] == "ipopt" and np.isfinite(res["f"])
+    # (Ipopt lists the options it was given, and whether it used them, in its log)
+    with open(prob._ipopt_log.path) as log:
+        used = [line.split() for line in log if line.strip().startswith("mu_strategy")]
+    assert used and used[0][-2:] == ["adaptive", "yes"], used
+    # a test that nothing fails stops Ipopt at its first iterate: the stop options reach it
+    with prob.tuned(stat_tol=1e9, feas_tol=1e9):
+        quick = prob.solve(w)
+    assert quick["success"] and quick["iterations"] <= 1, (quick["status"], quick["iterations"])
+
+
+def test_an_ipopt_option_ipopt_does_not_know_is_refused_when_the_solver_is_built(one_run_problem):
+    prob, _ = one_run_problem
+    opts = prob.opts.evolve(extra={"no_such_option": 1})
+    with pytest.raises(RuntimeError, match="no_such_option"):
+        Problem(prob.runs, prob.model, prob.values, opts).build()
