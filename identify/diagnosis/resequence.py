@@ -7,10 +7,10 @@ import numpy as np
 
 
 def resequence(current, runs, fopts, prob0, say):
-    """The current model's mode sequence decided again (:func:`identify.fitting.sequence_decision.decide_sequence`),
+    """The current model's mode sequence decided again (:func:`identify.fitting.mode_sequence.decide.decide_sequence`),
     from its solution on the sequence it has, and from the sequence as detected when the
     fits have changed that: (current, runs, changed). The one with the lower excess χ² is
-    taken, if it lowers the excess χ² (:func:`identify.fitting.sequence_decision.worse_sequence` with no
+    taken, if it lowers the excess χ² (:func:`identify.fitting.mode_sequence.decide.worse_sequence` with no
     slack); else unchanged. The runs then carry the new triggers and the next round
     measures the model with them (the named candidate's scores stand: they were its
     evidence against the model without it, on the same sequence).
@@ -22,8 +22,8 @@ def resequence(current, runs, fopts, prob0, say):
     excess χ² 10 754 against 10 161 and was not kept (μ0 6 standard errors off); fitted
     from the detected sequence at the named values it converged at excess χ² −79
     (reduced χ² 0.992, μ0 0.4846 ± 0.0011 against the data's 0.484) in 32 s."""
-    from identify.fitting.sequence import excess_chi2
-    from identify.fitting.sequence_decision import decide_sequence, worse_sequence
+    from identify.fitting.mode_sequence.decide import decide_sequence, worse_sequence
+    from identify.fitting.mode_sequence.passes import excess_chi2
 
     p, w = rebuild_problem(current, runs, fopts, prob0)
     r0 = p.residuals(w)
@@ -88,8 +88,8 @@ def as_detected(runs):
 def decided_from(runs, p, values, say):
     """(problem, solution): the model of ``p`` at ``values`` solved on ``runs`` and its
     sequence decided from there, as a fit decides it."""
+    from identify.fitting.mode_sequence.decide import decide_sequence
     from identify.fitting.problem import Problem
-    from identify.fitting.sequence_decision import decide_sequence
 
     pd = Problem(runs, p.model, dict(values), p.opts)
     pd.progress = say

@@ -45,7 +45,7 @@ class DiagnosisOptions:
         trigger encoding itself leaves up to 1.24× on data made by the model (README).
     resequence : True, False or "auto"
         Once an effect is named, decide the mode sequence again with it
-        (:func:`identify.fitting.sequence_decision.decide_sequence`): the baseline's sequence was decided by a
+        (:func:`identify.fitting.mode_sequence.decide.decide_sequence`): the baseline's sequence was decided by a
         model without the effect and may have been bent to absorb it (inserted slips,
         moved triggers), which the model with the effect then misfits. A new sequence is
         kept only if it lowers χ² (with the within-plateau sums). ``"auto"`` (default):

@@ -4,9 +4,8 @@ The data fix the mode sequence (:mod:`identify.traces.events`: plateaus separate
 trigger steps); :mod:`identify.fitting.problem` builds the multiple-shooting NLP over all runs;
 :mod:`identify.fitting.start` gets its start near the solution (the reduced analysis first,
 DESIGN.md §2); this module reads the runs (:mod:`identify.fitting.rundata` prepares each for the
-NLP), drives the solves, refines the mode sequence with the fitted model (local scores
-in :mod:`identify.fitting.problem`, missed slips in :mod:`identify.fitting.missed`, trials against the whole
-model in :mod:`identify.fitting.sequence`) and hands the solution to :mod:`identify.fitting.result`.
+NLP), drives the solves, has the mode sequence decided with the fitted model
+(:mod:`identify.fitting.mode_sequence`) and hands the solution to :mod:`identify.fitting.result`.
 """
 
 from __future__ import annotations
@@ -20,10 +19,10 @@ import numpy as np
 
 from identify import interrupts
 from identify.fitting import best_so_far
+from identify.fitting.mode_sequence.decide import decide_sequence
 from identify.fitting.options import FitError, FitOptions
 from identify.fitting.problem import Problem
 from identify.fitting.rundata import RunData, make_run_data
-from identify.fitting.sequence_decision import decide_sequence
 from identify.fitting.start_values import AUTO_SEED, spread_starts, start_values
 from identify.fitting.suspect import (
     SAME_SOLUTION_TOL,

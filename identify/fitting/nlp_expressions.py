@@ -12,7 +12,7 @@ import casadi as ca
 import numpy as np
 
 from identify.fitting.arc_callback import ArcCallback, blockdiag_sparsity
-from identify.fitting.triggers import START_SCALE_UM
+from identify.fitting.mode_sequence.triggers import START_SCALE_UM
 from identify.model.symbolic import LENGTH_UNIT
 
 __all__ = ["NLPExpressions"]

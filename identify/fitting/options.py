@@ -101,7 +101,7 @@ class FitOptions:
         plausibly have (:data:`identify.model.plausible.PARAMETER_RANGES`: ``tau = 67.4``
         is milliseconds typed for seconds), naming the likely unit slip; False takes them.
     sequence_trials : int
-        Trials of the last mode-sequence pass (:func:`identify.fitting.sequence.misfit_triggers`:
+        Trials of the last mode-sequence pass (:func:`identify.fitting.mode_sequence.passes.misfit_triggers`:
         local changes where the model's triggers misfit, each a short re-solve of the
         changed run alone with the parameters held; a kept change is solved jointly);
         0 turns it off. Data whose triggers fit pay none.

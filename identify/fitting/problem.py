@@ -63,9 +63,9 @@ from identify.fitting.arcs import SHARE_FEAS, SHARE_TOL, SOLVE_REL_STEP, arc_fun
 from identify.fitting.covariance import Covariance
 from identify.fitting.gauss_newton import GaussNewtonSQP
 from identify.fitting.ipopt import IpoptSolver
+from identify.fitting.mode_sequence.triggers import TriggerRefinement, below_top
 from identify.fitting.nlp_expressions import NLPExpressions
 from identify.fitting.theta_map import ThetaMap as ThetaMap
-from identify.fitting.triggers import TriggerRefinement, below_top
 from identify.model.params import SPECS
 from identify.model.symbolic import LENGTH_UNIT, Model
 

@@ -1,7 +1,7 @@
 """One run prepared for the NLP: its plateaus (frame counts, means, the pooled
 within-plateau staircase) for a given mode sequence, or its steady level for a run
 that creeps. The mode sequence (trigger steps) decides which frames belong to which
-plateau; :mod:`identify.fitting.sequence` rebuilds a run this way for every sequence it tries.
+plateau; :mod:`identify.fitting.mode_sequence.passes` rebuilds a run this way for every sequence it tries.
 """
 
 from __future__ import annotations

@@ -57,7 +57,7 @@ def _aging_residuals(prob, names, values, tab):
     z0 = law.rejuvenated_state(P) + _seed(law, P)
     z = law.rest(z0, tab["rest"], P)
     z_before = law.rest(z0, np.maximum(tab["rest"] - 1 / prob.ev_fp[ev], 0), P)
-    from identify.fitting.triggers import trigger_residual
+    from identify.fitting.mode_sequence.triggers import trigger_residual
 
     return trigger_residual(prob.position(z, tab["x_prev"], e0, Pev, z_before=z_before))
 

@@ -21,7 +21,7 @@ AMBIGUOUS_RSS = 9.0
 """A slip boundary whose best other step-aligned split fits the frames within this much
 RSS (σ², a likelihood ratio of e^4.5) is ambiguous: noise on the frames next to a slip
 can make the split a step late. The fit then tries the alternative against the whole
-model (:func:`identify.fitting.sequence.ambiguous_triggers`): measured on an OTS run
+model (:func:`identify.fitting.mode_sequence.passes.ambiguous_triggers`): measured on an OTS run
 (k = 20.3 N/m, 30 µN, 30 Hz, 90 nm), one slip detected a step late (margin 1.6 σ²)
 shifted μmin by −11 % and A by +83 %, 9 standard errors, through the chain of slips
 after it."""

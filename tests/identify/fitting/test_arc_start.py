@@ -8,8 +8,8 @@ import pytest
 
 from identify import SimulationOptions, simulate
 from identify.fitting.driver import FitOptions, make_run_data
+from identify.fitting.mode_sequence.triggers import START_MARGIN, below_top
 from identify.fitting.problem import Problem
-from identify.fitting.triggers import START_MARGIN, below_top
 from identify.model.laws import get_law
 from identify.model.params import parameter_set
 from identify.model.symbolic import Model

@@ -114,7 +114,7 @@ def test_a_loose_solve_stops_where_a_sequence_decision_can_and_the_fit_ends_tigh
 def test_the_full_tolerance_solve_after_the_sequence(ends):
     """A loose solution is solved on to the full tolerance; if that fails the loose point
     stands, reported as not converged, never as the loose solve's success."""
-    from identify.fitting.sequence_decision import full_tolerance
+    from identify.fitting.mode_sequence.decide import full_tolerance
 
     class Stub:
         def solve(self, w):
@@ -377,7 +377,7 @@ def _late_trigger(ev, j, margin):
 
 
 def test_other_step_puts_moved_neighbours_back():
-    from identify.fitting.sequence import _other_step
+    from identify.fitting.mode_sequence.passes import _other_step
 
     detected = np.array([10, 20, 30, 40, 50])
     # slip 2 detected at 30, its alternative 29; the mode sequence had moved slip 3 to 42
@@ -395,7 +395,7 @@ def test_trigger_misfit_reads_the_slip_and_the_next_two():
     slip nearest the step and the two after it, in that run only (a first slip has none)."""
     from types import SimpleNamespace
 
-    from identify.fitting.sequence import _trigger_misfit
+    from identify.fitting.mode_sequence.passes import _trigger_misfit
 
     # run 0: events 0-4 at steps 10-50; run 1: events 5-6; trigger rows from 3, one per
     # event with a predecessor (ev_next), in that order
@@ -440,7 +440,7 @@ def test_an_ambiguous_trigger_is_tried_at_its_other_step(small_traces, margin, m
 
 
 def test_the_changes_tried_where_a_trigger_misfits():
-    from identify.fitting.sequence import _moves
+    from identify.fitting.mode_sequence.passes import _moves
 
     m = {label: (steps, kind, n) for label, steps, kind, n in _moves(np.array([10, 15, 20, 25]), 2, 17, 40)}
     assert m["slip at step 20 to 19"] == ([10, 15, 19, 25], "moved", 1)
@@ -464,7 +464,7 @@ def test_a_change_has_one_key_however_it_is_reached():
     """The pass does not try a change twice: its key is the triggers it changed and
     their unchanged neighbours, the same from either flagged slip and after a change
     kept further along the run; a change near it gives another key."""
-    from identify.fitting.sequence import LOCAL_SLIPS, _local
+    from identify.fitting.mode_sequence.passes import LOCAL_SLIPS, _local
 
     T = [10 * j for j in range(1, 21)]
     shift = lambda steps: [s + 1 if s == 110 else s for s in steps]  # noqa: E731
@@ -481,7 +481,7 @@ def test_a_change_has_one_key_however_it_is_reached():
 def test_flagged_triggers_worst_first():
     from types import SimpleNamespace
 
-    from identify.fitting.sequence import _flagged
+    from identify.fitting.mode_sequence.passes import _flagged
 
     runs = [SimpleNamespace(trigger_steps=np.array([10, 20, 30, 40, 50])),
             SimpleNamespace(trigger_steps=np.array([10, 20]))]
@@ -499,7 +499,7 @@ def test_predicted_shifts_follow_the_trigger_residuals():
     (its residual rings), as is one the model cannot evaluate and one within the gate."""
     from types import SimpleNamespace
 
-    from identify.fitting.sequence import BATCH_REACH, _predicted_shifts
+    from identify.fitting.mode_sequence.passes import BATCH_REACH, _predicted_shifts
 
     steps = np.arange(10, 130, 10)  # run 0: twelve slips; run 1: two
     runs = [SimpleNamespace(trigger_steps=steps), SimpleNamespace(trigger_steps=np.array([10, 20]))]
@@ -567,7 +567,7 @@ def test_insertions_go_with_the_first_moves_that_do_not_meet_them():
     first); a move that meets or crosses an inserted slip is left to the next round."""
     from types import SimpleNamespace
 
-    from identify.fitting.sequence_decision import with_insertions
+    from identify.fitting.mode_sequence.decide import with_insertions
 
     prob = SimpleNamespace(runs=[SimpleNamespace(trigger_steps=np.array([10, 20, 30, 40])),
                                  SimpleNamespace(trigger_steps=np.array([5, 15]))])
@@ -607,7 +607,7 @@ def test_a_changed_sequence_keeps_the_starts_and_arcs_it_did_not_change(small_fi
     position (and so its arc, not integrated again), where each had been set
     mid-interval and synced from scratch; the slip moved and the one after it are
     synced, and every start ends within CARRY_START_TOL of its target."""
-    import identify.fitting.sequence_carry as seq
+    import identify.fitting.mode_sequence.carry as seq
 
     prob, w = small_fit.problem, small_fit.w
     ri = 0
@@ -638,7 +638,7 @@ def test_a_run_alone_has_the_whole_problems_rows(small_fit):
     """A mode-sequence trial solves one run with the parameters held: at the fitted w
     that run's residuals are the whole problem's rows for it, so the runs' excess χ²
     add up to the whole problem's, and the run's variables map back where they were."""
-    from identify.fitting.sequence_trials import _run_index, _split, excess_chi2, run_alone
+    from identify.fitting.mode_sequence.trials import _run_index, _split, excess_chi2, run_alone
 
     prob, w = small_fit.problem, small_fit.w
     model = prob.model
@@ -662,7 +662,7 @@ def test_a_run_alone_maps_every_layout(small_fit, layout):
     the other layouts too (an offset per run, no start variables, free phases)."""
     from dataclasses import replace
 
-    from identify.fitting.sequence_trials import _run_index, excess_chi2, run_alone
+    from identify.fitting.mode_sequence.trials import _run_index, excess_chi2, run_alone
 
     opts = replace(small_fit.problem.opts, **layout)
     prob = Problem(small_fit.problem.runs, small_fit.problem.model, small_fit.problem.values, opts).build()
@@ -683,7 +683,7 @@ def test_a_kept_change_ends_on_its_full_solve():
     short solve (whose point may violate the constraints); only a failed one does not."""
     from types import SimpleNamespace
 
-    from identify.fitting.sequence_trials import _keep
+    from identify.fitting.mode_sequence.trials import _keep
 
     opts = FitOptions(fixed={"v_stick": V_STICK})
     short = dict(w=np.zeros(2), f=1.0, status="Maximum_Iterations_Exceeded", success=False, iterations=4, wall_s=0.1)
@@ -697,11 +697,11 @@ def test_a_kept_change_ends_on_its_full_solve():
 
 
 def test_the_joint_solve_after_a_pass_adds_to_the_fits_count():
-    """Kept changes are solved jointly once per pass (:func:`identify.fitting.sequence_trials.solve_joint`):
+    """Kept changes are solved jointly once per pass (:func:`identify.fitting.mode_sequence.trials.solve_joint`):
     its iterations and time add to those the solution carries, and it says so."""
     from types import SimpleNamespace
 
-    from identify.fitting.sequence_trials import solve_joint
+    from identify.fitting.mode_sequence.trials import solve_joint
 
     opts = FitOptions(fixed={"v_stick": V_STICK})
     said = []
@@ -1746,7 +1746,7 @@ def test_a_mode_sequence_that_ends_worse_is_not_kept(small_traces, monkeypatch):
     says what was not kept."""
     import sys
 
-    F = sys.modules["identify.fitting.sequence_decision"]  # (where the fit decides its sequence)
+    F = sys.modules["identify.fitting.mode_sequence.decide"]  # (where the fit decides its sequence)
     real = F.misfit_triggers
 
     def worse(prob, best, *a, **k):
@@ -1769,7 +1769,7 @@ def test_a_mode_sequence_that_ends_worse_is_not_kept(small_traces, monkeypatch):
 def test_worse_sequence_compares_excess_chi2():
     """Excess χ² (χ² − observations) decides, with SEQUENCE_SLACK to spare; a solution
     that cannot be evaluated after is worse, one that cannot before decides nothing."""
-    from identify.fitting.sequence_decision import SEQUENCE_SLACK, worse_sequence
+    from identify.fitting.mode_sequence.decide import SEQUENCE_SLACK, worse_sequence
 
     class P:
         def __init__(self, n_obs):
@@ -2103,7 +2103,7 @@ def test_moved_triggers_that_meet_go_back_one_clash_at_a_time():
     sequence, which is left as it was."""
     from types import SimpleNamespace
 
-    from identify.fitting.triggers import TriggerRefinement
+    from identify.fitting.mode_sequence.triggers import TriggerRefinement
 
     stub = SimpleNamespace(E=4, ev_step=np.array([10, 12, 14, 30]), ev_run=np.array([0, 0, 0, 0]))
     shifts = (-2, -1, 1, 2)

@@ -7,8 +7,14 @@ import logging
 
 import numpy as np
 
-from identify.fitting.missed import missed_slips
-from identify.fitting.sequence import ambiguous_triggers, batch_triggers, excess_chi2, misfit_triggers, with_triggers
+from identify.fitting.mode_sequence.missed import missed_slips
+from identify.fitting.mode_sequence.passes import (
+    ambiguous_triggers,
+    batch_triggers,
+    excess_chi2,
+    misfit_triggers,
+    with_triggers,
+)
 from identify.fitting.suspect import NOISE_P, suspect_reason
 
 log = logging.getLogger(__name__)
@@ -24,7 +30,7 @@ def decide_sequence(prob, best: dict, model, values: dict, opts, say, fresh_star
     triggers the model places a step or two off moved (the frames taken while the block
     moved left out), missed slips inserted, runs with many triggers a step off by their
     residuals given one trial each, then the detector's ambiguous triggers and whatever
-    still misfits tried (:mod:`identify.fitting.sequence`), each change re-solved.
+    still misfits tried (:mod:`identify.fitting.mode_sequence.passes`), each change re-solved.
     Returns (problem, solution) with the counts in ``triggers_moved``, ``slips_inserted``
     and ``slips_removed``, and in ``restarts`` each solve after inserted slips
     (:func:`after_insertion`). ``fresh_start`` (parameter values): after inserting slips,
@@ -149,7 +155,7 @@ def full_tolerance(prob, best: dict) -> dict:
 
 def with_insertions(prob, moved: dict, n_moved: int, inserted: dict, n_inserted: int) -> tuple[dict, int, int]:
     """The trigger moves ``moved`` ({run: steps}) with the slips of ``inserted`` (found
-    at the same solution, :func:`identify.fitting.missed.missed_slips`) added: (changes, number
+    at the same solution, :func:`identify.fitting.mode_sequence.missed.missed_slips`) added: (changes, number
     moved, number inserted). A move that meets or crosses an inserted slip is not made
     (the two disagree about one slip; the insertion has the frames' 3σ jump for it, the
     move only a local score on plateaus the missed slip bent); the next round's scores,
@@ -160,7 +166,7 @@ def with_insertions(prob, moved: dict, n_moved: int, inserted: dict, n_inserted:
     first round had moved 3 triggers and re-solved (18 s), the second inserted 6 slips
     and solved afresh (64 s). Now the first round moves 2 and inserts 7, one move left
     to the next round; the seventh slip, found on plateaus a misplaced trigger bent, is
-    removed again by the misfit pass (identify.fitting.sequence), which ends with every trigger
+    removed again by the misfit pass (identify.fitting.mode_sequence.passes), which ends with every trigger
     fitting: 163 -> 135 s, the same profiler."""
     if not n_inserted:
         return moved, n_moved, 0

@@ -102,7 +102,7 @@ class _Stub:
 def test_after_inserted_slips_the_warm_point_is_solved_only_when_the_fresh_solve_looks_wrong(
         monkeypatch, ends, solved, kept):
     import identify.fitting.start
-    from identify.fitting.sequence_decision import after_insertion
+    from identify.fitting.mode_sequence.decide import after_insertion
 
     monkeypatch.setattr(identify.fitting.start, "staged_start", lambda prob, values, seed=0: (values, {}))
     prob, restarts = _Stub(ends), []

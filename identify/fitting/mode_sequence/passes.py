@@ -12,9 +12,9 @@ there, so data whose triggers fit pay nothing.
 
 A trial changes one run's sequence, and given the parameters the runs are independent
 (each has its own plateaus, offset, phase and arc starts), so a trial solves that run
-alone with the parameters held (:func:`identify.fitting.sequence_trials.run_alone`): its
+alone with the parameters held (:func:`identify.fitting.mode_sequence.trials.run_alone`): its
 χ² change is the whole problem's at those parameters. Kept changes are solved jointly,
-the parameters free, once per pass (:func:`identify.fitting.sequence_trials.solve_joint`).
+the parameters free, once per pass (:func:`identify.fitting.mode_sequence.trials.solve_joint`).
 
 A run with many slips off by whole steps (a phase-locked run of 3σ slips: 16 of its
 323 on the 10-run speed benchmark) is first given one trial that moves each of them by
@@ -22,8 +22,8 @@ what its residual says (:func:`batch_triggers`), instead of a trial, a re-solve 
 rebuild of the whole problem per slip.
 
 The passes are here; the problem rebuilt for a new sequence is in
-:mod:`identify.fitting.sequence_carry`, the trials' machinery in
-:mod:`identify.fitting.sequence_trials`.
+:mod:`identify.fitting.mode_sequence.carry`, the trials' machinery in
+:mod:`identify.fitting.mode_sequence.trials`.
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from identify.fitting.sequence_carry import CARRY_START_TOL as CARRY_START_TOL
-from identify.fitting.sequence_carry import with_triggers as with_triggers
-from identify.fitting.sequence_trials import (
+from identify.fitting.mode_sequence.carry import CARRY_START_TOL as CARRY_START_TOL
+from identify.fitting.mode_sequence.carry import with_triggers as with_triggers
+from identify.fitting.mode_sequence.trials import (
     continue_trial,
     excess_parts,
     held_options,
@@ -44,7 +44,7 @@ from identify.fitting.sequence_trials import (
     solve_joint,
     try_sequence,
 )
-from identify.fitting.sequence_trials import excess_chi2 as excess_chi2
+from identify.fitting.mode_sequence.trials import excess_chi2 as excess_chi2
 
 log = logging.getLogger(__name__)
 
@@ -92,7 +92,7 @@ BATCH_MIN = 3  # slips a run needs a step off, by their residuals, for a batch t
 BATCH_REACH = 2  # steps a batch trial moves a slip at most
 # A batch trial is kept when none of its moved slips still misfits in its solution and
 # it lowers the run's χ² − n_obs by BATCH_GAIN per slip moved (a 3σ gain each on average,
-# as identify.fitting.missed asks of an insertion); a moved slip that still misfits has its move
+# as identify.fitting.mode_sequence.missed asks of an insertion); a moved slip that still misfits has its move
 # dropped and the rest is tried again, BATCH_ROUNDS trials at most. Why: on calibration
 # seed 14 a batch of 12 moves gained 56 (4.7 a move) and, kept at 1 a move, left the
 # passes after it 18 misfit triggers and reduced χ² 1.117 where they alone had reached
@@ -354,7 +354,7 @@ def misfit_triggers(prob, best, model, values, opts, say, unsolved: bool = False
     """Repair the mode sequence where the fitted model's triggers misfit.
 
     The detector's sequence, after the local refinements of :meth:`Problem.refine_triggers`,
-    :func:`identify.fitting.missed.missed_slips` and the ambiguous-trigger pass, can still be
+    :func:`identify.fitting.mode_sequence.missed.missed_slips` and the ambiguous-trigger pass, can still be
     wrong where slips are a few σ of a frame: on calibration seed 28 a state with 230 nm
     slips every 5 steps (2.5 σ) kept one missed slip, two slips a step late, a pair a step
     early and one spurious slip. The fit then bent μmin 6 % low and A 20 % high (−9.8 σ)
@@ -425,7 +425,7 @@ class _MisfitPass:
     def next_target(self):
         """(run, slip, local changes not tried yet) at the worst flagged slip that has any,
         or None."""
-        from identify.fitting.missed import best_split
+        from identify.fitting.mode_sequence.missed import best_split
 
         prob = self.prob
         for _, i, k in _flagged(prob, self.r_now):

@@ -14,8 +14,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from identify.fitting.mode_sequence.carry import with_triggers
 from identify.fitting.problem import Problem
-from identify.fitting.sequence_carry import with_triggers
 
 __all__ = ["held_options", "run_alone", "run_alone_or_none", "keep_trial", "excess_chi2", "excess_parts",
            "try_sequence", "continue_trial", "solve_joint"]
