@@ -127,6 +127,12 @@ GALLERY: dict[str, Section] = {
                 "Colas et al.'s paper on paper (data/real/colas2019), 168 N/m at 42 µm/s: each slip's force drop "
                 "against the time until the next slip, beside the line a sawtooth follows.",
                 draws=("plot_cycles",)))),
+    "imports": Section(
+        "Package structure", "``python docs/import_graph.py``, which also checks it",
+        (Figure("import-graph.png", "import-graph.png", "Import graph",
+                "The rooms of the package (the subpackages of identify, its top-level modules, the command "
+                "lines, design) on floors by the longest chain of imports below them: every arrow points down "
+                "and none goes round a circle. Dashed arrows are imports made only inside functions.",),)),
 }
 
 
@@ -218,8 +224,16 @@ def make_lab(folder: Path) -> None:
     _save(cyc.plot().figure, folder / "cycles_k168_v42.png")
 
 
+def make_imports(folder: Path) -> None:
+    import subprocess
+
+    # its own script, so that it runs without the gallery; it exits 1 on a circle
+    subprocess.run([sys.executable, str(HERE / "import_graph.py"), "--out", str(folder / "import-graph.png")],
+                   check=True)
+
+
 MAKERS = {"simulate": make_simulate, "regimes": make_regimes, "analyze": make_analyze, "fit": make_fit,
-          "diagnose": make_diagnose, "design": make_design, "lab": make_lab}
+          "diagnose": make_diagnose, "design": make_design, "lab": make_lab, "imports": make_imports}
 
 
 # ----------------------------------------------------------------------------- output

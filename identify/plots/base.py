@@ -83,6 +83,22 @@ def plot_simulation(result, axes: Sequence | None = None, t_window: tuple[float,
     return axes
 
 
+def plot_simulation_elongation(result, ax, t_window: tuple[float, float] | None = None, n_slips: int = 4):
+    """Panel (c) of :func:`plot_simulation` alone on ``ax``: the spring elongation over
+    the same window, titled with the run's conditions and regime. Returns ``ax``. Reached
+    through :meth:`identify.simulation.result.SimulationResult.plot` with one Axes."""
+    t0, t1 = _simulation_window(result, n_slips) if t_window is None else t_window
+    t = _simulation_times(result, t0, t1)
+    ax.plot(t * 1e3, result.elongation(t) * 1e6, color="C2")
+    ax.set_xlabel("time (ms)")
+    ax.set_ylabel("spring elongation (µm)")
+    c = result.conditions
+    ax.set_title(f"{result.coating + ', ' if result.coating else ''}k = {c.spring_constant:g} N/m, "
+                 f"$N_b$ = {c.normal_load * 1e6:g} µN, $f_p$ = {c.step_frequency:g} Hz "
+                 f"(regime: {result.regime})", fontsize=10)
+    return ax
+
+
 def _simulation_window(result, n_slips: int) -> tuple[float, float]:
     """Default time window of :func:`plot_simulation`: from just before the second slip to
     just after the ``n_slips``-th later one, or the whole run with fewer than 2 slips."""

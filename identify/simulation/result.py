@@ -380,20 +380,11 @@ class SimulationResult(SavedResult):
         """
         from matplotlib.axes import Axes
 
-        from identify.plots.base import _simulation_times, _simulation_window, plot_simulation
+        from identify.plots.base import plot_simulation, plot_simulation_elongation
 
         if not isinstance(ax, Axes):
             return plot_simulation(self, axes=ax, t_window=t_window, n_slips=n_slips)
-        t0, t1 = _simulation_window(self, n_slips) if t_window is None else t_window
-        t = _simulation_times(self, t0, t1)
-        ax.plot(t * 1e3, self.elongation(t) * 1e6, color="C2")
-        ax.set_xlabel("time (ms)")
-        ax.set_ylabel("spring elongation (µm)")
-        c = self.conditions
-        ax.set_title(f"{self.coating + ', ' if self.coating else ''}k = {c.spring_constant:g} N/m, "
-                     f"$N_b$ = {c.normal_load * 1e6:g} µN, $f_p$ = {c.step_frequency:g} Hz "
-                     f"(regime: {self.regime})", fontsize=10)
-        return ax
+        return plot_simulation_elongation(self, ax, t_window=t_window, n_slips=n_slips)
 
 
 def classify(events: EventTable, step: float, moving_fraction: float) -> str:
