@@ -181,14 +181,12 @@ def _oscillation_periods(t: np.ndarray, f: np.ndarray, hysteresis: float) -> np.
     of samples is not known here: the median of the whole record), with a hysteresis
     band so that noise does not count as crossings."""
     mid = float(np.median(f))
-    ups, armed = [], False
-    for i, v in enumerate(f):
-        if v < mid - hysteresis:
-            armed = True
-        elif armed and v > mid + hysteresis:
-            ups.append(t[i])
-            armed = False
-    return np.diff(np.asarray(ups, float))
+    low, high = f < mid - hysteresis, f > mid + hysteresis
+    # an upward crossing: a sample above the band whose last sample outside the band was below it
+    outside = np.nonzero(low | high)[0]
+    above = high[outside]
+    ups = outside[1:][above[1:] & ~above[:-1]]
+    return np.diff(np.asarray(t, float)[ups])
 
 
 def cycles_of_trace(trace, **options) -> CycleAnalysis:

@@ -70,3 +70,16 @@ def test_the_analysis_reports_and_round_trips(tmp_path, strict_json):
         analyze_cycles(t, f, drive_rate=0)
     with pytest.raises(ValueError, match="time increasing"):
         analyze_cycles(t[::-1], f, drive_rate=RATE)
+
+
+def test_an_upward_crossing_counts_once_through_the_hysteresis_band():
+    """Noise that wanders about the median inside the band, or dips into it from above,
+    adds no crossing: a crossing is a sample above the band whose last sample outside it
+    was below."""
+    from identify.traces.force_cycles import _oscillation_periods
+
+    f = np.array([0.0, 0.0, 2.0, 0.9, 1.1, 2.0, 0.0, 1.05, 0.95, 2.0, 2.0, 0.0, 2.0])
+    t = np.arange(f.size, dtype=float)
+    # median 1.05, band [0.75, 1.35]: ups at t = 2, 9, 12
+    np.testing.assert_array_equal(_oscillation_periods(t, f, hysteresis=0.3), [7.0, 3.0])
+    assert _oscillation_periods(t[:3], f[:3], 0.3).size == 0  # one crossing: no period
