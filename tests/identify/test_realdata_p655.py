@@ -43,8 +43,8 @@ def test_import_then_fit_gives_the_labs_aging_law_numbers(tmp_path, capsys, stri
     """From the raw file, through the lab's recipe, the aging-law fit at the lab's
     stiffness 1e-3/µm: a and b within 2 of the lab's standard errors, a − b with the lab's
     sign, Dc within 15 %, the misfit within 3× the recording's scatter in steady sliding.
-    (Measured: a 0.006022, b 0.004235, Dc 5.61 µm (−13.7 %), misfit 2.3× the scatter and
-    4.3× the sample-to-sample noise.)"""
+    (Measured: a 0.006047, b 0.004243, Dc 5.66 µm (−12.9 %), misfit 2.2× the scatter and
+    4.1× the sample-to-sample noise.)"""
     code, out, stem = _import(tmp_path, capsys)
     assert code == 0, out.err
     assert "assumed: velocities taken as given (nominal): 2.28, 22.85 µm/s" in out.out
@@ -92,8 +92,8 @@ def test_the_api_does_what_the_cli_does(tmp_path):
 def test_the_slip_law_and_how_the_numbers_move_with_window_and_stiffness(tmp_path, capsys):
     """The slip law compared with the lab's the same way, at both stiffnesses the lab
     used; then the window moved (1-20 s before the step, 5-22.5 s after). Measured: slip
-    at 1e-3 a 0.00595 (+1.3 σ), b 0.00420 (+1.1 σ), Dc 10.1 µm (−21 %); at 1.6e-3 a 0.00609
-    (+1.5 σ), b 0.00419 (−0.7 σ), Dc 15.0 µm (−15 %); over the nine windows the aging
+    at 1e-3 a 0.00598 (+1.6 σ), b 0.00421 (+1.2 σ), Dc 10.2 µm (−21 %); at 1.6e-3 a 0.00609
+    (+1.6 σ), b 0.00418 (−1.0 σ), Dc 15.3 µm (−14 %); over the nine windows the aging
     law's a spans 0.0048-0.0063 and Dc 5.4-10.8 µm, wider than any one fit's interval."""
     code, out, _ = _import(tmp_path, capsys)
     assert code == 0
