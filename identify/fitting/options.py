@@ -264,7 +264,7 @@ class FitOptions:
             raise ValueError(f"auto_starts = {self.auto_starts!r}: must be >= 0")
         if self.sequence_trials < 0:
             raise ValueError(f"sequence_trials = {self.sequence_trials!r}: must be >= 0")
-        passes = tuple(self.sequence_passes)
+        passes = (self.sequence_passes,) if isinstance(self.sequence_passes, str) else tuple(self.sequence_passes)
         object.__setattr__(self, "sequence_passes", passes)
         unknown = [p for p in passes if p not in SEQUENCE_PASSES]
         if unknown:

@@ -1428,6 +1428,11 @@ def test_bad_options(kwargs, match):
         FitOptions(**kwargs)
 
 
+def test_one_sequence_pass_may_be_given_as_a_string():
+    assert FitOptions(sequence_passes="misfit").sequence_passes == ("misfit",)
+    assert FitOptions(sequence_passes=["batch", "misfit"]).sequence_passes == ("batch", "misfit")
+
+
 def test_interval_triggers_are_bounds_not_residuals(small_traces):
     """The interval encoding drops every trigger row (a residual per slip, a phase row per
     run, a first-start row per run), bounds each arc's start position to its interval,
