@@ -71,8 +71,7 @@ class _IpoptConvergence(ca.Callback):
         self.nx, self.ng = problem.n_w, problem.n_g
         self.converged = self.status = self.best = None
         self.since = 0
-        self.lbx = self.ubx = None
-        self.stat_tol, self.feas_tol = problem.opts.stop.stat_tol, problem.opts.stop.feas_tol
+        self.lbx = self.ubx = self.stat_tol = self.feas_tol = None  # (each solve's: start)
         self.construct("ipopt_convergence", {})
 
     def start(self, lbx, ubx, stat_tol: float, feas_tol: float):
@@ -161,7 +160,6 @@ class IpoptSolver:
             hess_lag=ca.Function("hess_lag", [w, p, lam_f, lam_g], [ca.triu(lam_f * ca.mtimes(Jr.T, Jr))],
                                  ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"]),
         )
-        self._ipopt_oracle = oracle  # (kept: a test reads the gradient's sparsity)
         self._ipopt_test = _IpoptConvergence(self)
         self._ipopt_log = _IpoptLog()
         self.ipopt = ca.nlpsol("identify", "ipopt", {"x": w, "f": f, "g": g}, dict(

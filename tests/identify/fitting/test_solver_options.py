@@ -122,5 +122,5 @@ def test_ipopt_is_given_a_dense_gradient(one_run_problem):
     differed from process to process (9 to 109 iterations with one hash seed or another).
     The gradient is dense."""
     prob, _ = one_run_problem
-    grad = prob._ipopt_oracle["grad_f"]
+    grad = prob.ipopt.get_function("nlp_grad_f")  # (the gradient the solver hands Ipopt)
     assert grad.sparsity_out(1).nnz() == prob.n_w == grad.size1_out(1)
