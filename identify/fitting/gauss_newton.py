@@ -14,6 +14,7 @@ from collections.abc import Mapping
 import numpy as np
 import scipy.sparse as sp
 
+from identify.fitting import convergence
 from identify.fitting.arcs import SOLVE_REL_STEP
 from identify.fitting.convergence import (
     FEAS_TOL,
@@ -24,6 +25,7 @@ from identify.fitting.convergence import (
     STALLED,
     bounded_step,
     kkt_solve,
+    say_iteration,
 )
 from identify.fitting.gn_line_search import MAX_SOC as MAX_SOC
 from identify.fitting.gn_line_search import MeritLineSearch
@@ -55,7 +57,6 @@ NEAR_SHARE = 0.1
 # on central ones only if it ended within this violation of continuity (µm): further out
 # it is the constraints' curvature, not the differences, that stops it.
 CENTRAL_RESOLVE_FEAS = 1e-2
-PROGRESS_EVERY_S = 30.0  # a solve that runs longer reports its iterations this often
 _NEXT, _END = "next iteration", "end of the solve"  # what a step of solve_gn says the loop does next
 
 
@@ -93,7 +94,8 @@ class GaussNewtonSQP(MeritLineSearch):
             return res
         self.central_differences()
         try:
-            more = self._solve_gn_resolved(res["w"], fixed)
+            more = (self.solve_ipopt(res["w"], fixed) if self.opts.solver == "ipopt"
+                    else self._solve_gn_resolved(res["w"], fixed))
         except Exception as err:  # the shared solution stands
             log.info("the solve on the covariance's differences after a shared one failed: %s", err)
             return res
@@ -415,10 +417,9 @@ class GaussNewtonSQP(MeritLineSearch):
     def _report_progress(self, st: SolveState, feas: float) -> None:
         """The iteration, χ² and constraint violation to ``progress``, every
         PROGRESS_EVERY_S of a long solve."""
-        if self.progress is not None and time.perf_counter() - st.said >= PROGRESS_EVERY_S:
+        if self.progress is not None and time.perf_counter() - st.said >= convergence.PROGRESS_EVERY_S:
             st.said = time.perf_counter()
-            self.progress(f"  iteration {st.it} of at most {self.opts.max_iter}: χ² {float(st.r @ st.r):.6g}, "
-                          f"constraint violation {feas:.2e}, {st.said - st.t0:.0f} s")
+            say_iteration(self, st.it, float(st.r @ st.r), feas, st.said - st.t0)
 
     def _ends_after_step(self, st: SolveState, step: Iteration, step_th: float, feas: float, lm_step: float) -> bool:
         """Whether the solve ends after a step taken: converged (relative step, violation

@@ -60,6 +60,7 @@ import scipy.sparse as sp
 from identify import interrupts
 from identify.fitting import best_so_far
 from identify.fitting.arcs import SHARE_FEAS, SHARE_TOL, SOLVE_REL_STEP, arc_functions
+from identify.fitting.convergence import GAVE_UP, Status
 from identify.fitting.covariance import Covariance
 from identify.fitting.gauss_newton import GaussNewtonSQP
 from identify.fitting.ipopt import IpoptSolver
@@ -366,7 +367,40 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
     def _solve(self, w0, fixed, loose):
         self.jacobian_scheme(self.opts.arc_jacobian, SOLVE_REL_STEP)
         if self.opts.solver == "ipopt":
-            return self.solve_ipopt(w0, fixed, loose)
+            return self._ipopt_then_sqp(w0, fixed, loose)
+        return self._solve_sqp(w0, fixed, loose)
+
+    def _ipopt_then_sqp(self, w0, fixed, loose):
+        """Ipopt; where it ends neither converged nor stopped by its caller (stuck, or one of
+        its own failures) with iterations left, the SQP goes on from the better of its end
+        and its start for the iterations left. Its active-set steps reach a solution on a
+        bound, which Ipopt's barrier approaches only as its parameter falls (and the arcs'
+        noise keeps it from falling): measured on a baseline fitted without its load offset."""
+        res = self.solve_ipopt(w0, fixed, loose)
+        left = self.opts.max_iter - int(res["iterations"])
+        if res["success"] or res["status"] in (GAVE_UP, Status.MAXIMUM_ITERATIONS_EXCEEDED.value) or left <= 0:
+            return res
+        start = res["w"] if np.isfinite(res["f"]) and res["f"] <= self._half_chi2(w0) else w0
+        log.info("Ipopt ended %s after %d iterations: the Gauss-Newton SQP goes on (%d iterations left)",
+                 res["status"], res["iterations"], left)
+        try:
+            with self.tuned(max_iter=left):
+                more = self._solve_sqp(start, fixed, loose)
+        except Exception as err:  # (Ipopt's point stands)
+            log.info("the SQP after Ipopt failed: %s", err)
+            return res
+        ipopt_record = {k: res[k] for k in ("ipopt_status", "restoration_iterations", "warm") if k in res}
+        return dict(more, **ipopt_record, iterations=int(res["iterations"]) + int(more["iterations"]),
+                    wall_s=res["wall_s"] + more["wall_s"], solver="ipopt", handed_over=res["status"])
+
+    def _half_chi2(self, w) -> float:
+        try:
+            r = self.residuals(w)
+        except Exception:
+            return float("inf")
+        return 0.5 * float(r @ r) if np.all(np.isfinite(r)) else float("inf")
+
+    def _solve_sqp(self, w0, fixed, loose):
         if not loose:
             return self._solve_gn_resolved(w0, fixed)
         # (only the convergence test: the line search's and the stall rule's tolerances

@@ -128,7 +128,7 @@ def solver_record(prob, best: dict, wall_s: float, gap: dict | None) -> dict:
                 slips_removed=int(best.get("slips_removed", 0)),
                 restarts=list(best.get("restarts", [])), solution_gap=gap,
                 sequence_not_kept=best.get("sequence_not_kept"),
-                **{k: best[k] for k in ("ipopt_status", "restoration_iterations") if k in best},
+                **{k: best[k] for k in ("ipopt_status", "restoration_iterations", "handed_over") if k in best},
                 method=("Gauss-Newton SQP (Gauss-Newton Hessian, l1-merit line search)"
                         if prob.opts.solver == "gauss-newton" else "Ipopt (Gauss-Newton Hessian)"),
                 trigger=prob.opts.trigger)

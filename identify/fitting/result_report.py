@@ -66,7 +66,9 @@ def _solver_notes(s: dict) -> list:
         *(["    Ipopt              = "
            + ("stopped at the fit's Gauss-Newton convergence test" if s["ipopt_status"] == "User_Requested_Stop"
               else f"returned {s['ipopt_status']}")
-           + f"; {s.get('restoration_iterations', 0)} restoration iteration(s)"]
+           + f"; {s.get('restoration_iterations', 0)} restoration iteration(s)"
+           + (f"; it ended {s['handed_over']} and the Gauss-Newton SQP went on from there"
+              if s.get("handed_over") else "")]
           if s.get("ipopt_status") else []),
         *(["    triggers           = intervals (after the uniform encoding's fit); no trigger "
            "residuals in the chi-square or the covariance"] if s.get("trigger") == "interval" else []),

@@ -116,7 +116,7 @@ def test_sequence_passes_are_read_and_a_bad_one_is_named(capsys):
 
     def options(text):
         ns = argparse.Namespace(free=None, fix=None, bound=None, start=None, law=None, free_offset=False,
-                                multistart=0, seed=None, solver="gauss-newton", trigger="uniform",
+                                multistart=0, seed=None, solver="ipopt", trigger="uniform",
                                 sequence_trials=None, sequence_passes=text, stick_speed="check")
         return cli._fit_options(ns).sequence_passes
 

@@ -155,8 +155,6 @@ def try_sequence(prob, w, changes: dict, model, values, short, say):
 def _solve_again(trial, w, opts) -> dict:
     """The trial's problem solved from ``w`` under ``opts`` (its own were a trial's)."""
     trial.opts = opts
-    if opts.solver == "ipopt":
-        trial.build()  # (Ipopt's iteration limit is built into its solver object)
     return trial.solve(w)
 
 

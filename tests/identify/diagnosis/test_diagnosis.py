@@ -145,7 +145,10 @@ def test_held_out_runs_of_a_model_far_from_the_data_are_refitted(small_fit):
     rows = np.isfinite(ho.residuals)
     r_good, _ = exact_fold(prob, w, [3])
     assert rows.sum() == r_good.size
-    assert np.sqrt(np.mean((ho.residuals[rows] - r_good) ** 2)) < 0.2
+    # (the refit without the fold has two solutions 0.17 apart in ½χ², the parameters
+    # 0.65-0.73 standard errors apart: the SQP from the far start reaches the one the good
+    # fit's refit reaches, its prediction within 2e-5 of the noise; Ipopt the other, 0.42)
+    assert np.sqrt(np.mean((ho.residuals[rows] - r_good) ** 2)) < 0.5
 
 
 def test_held_out_fold_left_linear_when_no_refit_is_asked(small_fit):
@@ -782,12 +785,20 @@ def offset_baseline():
     return identify.fit(withheld_dataset("load_offset", conditions=conds, base={"A": 0.015}), options=OPTS)
 
 
-def test_a_named_effect_ends_the_diagnosis_without_measuring_it_twice(offset_baseline):
-    """A load offset on four short runs, the only candidate: named in round 1; with nothing
-    left to try, the final model is that refit (its held-out folds are not refitted again)."""
+@pytest.fixture(scope="module")
+def offset_named(offset_baseline):
+    """The load offset named on its baseline's mode sequence (no sequence decided again),
+    and what the diagnosis said."""
     said = []
     res = diagnose(None, baseline=offset_baseline,
                    options=DiagnosisOptions(effects=("load_offset",), resequence=False), progress=said.append)
+    return res, said
+
+
+def test_a_named_effect_ends_the_diagnosis_without_measuring_it_twice(offset_named):
+    """A load offset on four short runs, the only candidate: named in round 1; with nothing
+    left to try, the final model is that refit (its held-out folds are not refitted again)."""
+    res, said = offset_named
     assert res.effects == ["load_offset"], res.report()
     c = res.candidates[0]
     assert not any("deciding the mode sequence again" in m for m in said)
@@ -822,18 +833,23 @@ def test_a_named_model_decides_its_sequence_from_the_detected_one_too(offset_bas
     assert res.final["values"]["load_offset"] == pytest.approx(2e-6, rel=0.05)  # (± 3 of its 1.6 % errors)
 
 
-def test_auto_resequencing_only_while_the_named_model_misfits(offset_baseline):
+def test_auto_resequencing_only_while_the_named_model_misfits(offset_baseline, offset_named):
     """The default decides the sequence again only while the named model's held-out gap is
     above the tolerance (measured: the topography set went from 1.51× the noise and
     `unexplained` to 1.08× and `adequate`); a model at the noise keeps its sequence."""
-    from identify.diagnosis.selection import at_noise
+    from identify.diagnosis.selection import at_noise, gap_ratio
 
     opts = DiagnosisOptions()
     assert at_noise(Rec(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.029)), opts)
     assert not at_noise(Rec(gap=dict(noise_um=0.02), heldout=dict(gap_um=0.031)), opts)
     assert not at_noise(Rec(gap=dict(noise_um=0.02), heldout=dict(gap_um=float("nan"))), opts)
-    # named there with its held-out gap at 1.68× the noise (four short runs)
-    for tol, again in ((2.0, False), (1.5, True)):
+    # the named model's held-out gap on its baseline's sequence, over the noise (four short
+    # runs; measured 1.68× after the SQP's baseline, 2.67× after Ipopt's, which ends
+    # at 1.29× once the sequence is decided again): a tolerance above it keeps the
+    # sequence, one below decides it again
+    ratio = gap_ratio(offset_named[0].candidates[0])
+    assert 1.0 < ratio < 5.0, ratio
+    for tol, again in ((1.1 * ratio, False), (0.9 * ratio, True)):
         said = []
         res = diagnose(None, baseline=offset_baseline,
                        options=DiagnosisOptions(effects=("load_offset",), gap_tolerance=tol), progress=said.append)

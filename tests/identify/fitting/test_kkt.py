@@ -89,3 +89,26 @@ def test_a_solution_too_large_to_check_is_left_to_the_whole_matrix():
         warnings.simplefilter("error")
         assert kkt._eliminated(K, 1e304 * b, kkt.dense_columns(K)) is None  # (x ~1e307, ‖K‖ 835)
         assert kkt._eliminated(K, b, kkt.dense_columns(K)) is not None
+
+
+def test_a_variable_an_interior_point_left_next_to_its_bound_is_held_there():
+    """bounded_step holds a variable the step pushes outwards at a bound it sits within
+    BOUND_NEAR of its range of (an interior-point iterate never reaches the bound): its
+    step is zero and the others' gain is the one the bound allows. Before, A left 9e-8 off
+    its bound (range 100) was stepped to -5.7, a gain of 920 in ½χ² no step could take."""
+    from identify.fitting.convergence import BOUND_NEAR, bounded_step
+
+    # min ½|r|², r = (x0 - 1, x1 + 1): the unconstrained step takes x1 to -1, below its bound 0
+    H = sp.identity(2, format="csc")
+    Jg = sp.csr_matrix((0, 2))
+    lbx, ubx = np.array([-10.0, 0.0]), np.array([10.0, 100.0])
+    for x1, held in ((9e-8, True), (0.3 * BOUND_NEAR * 100, True), (3 * BOUND_NEAR * 100, False)):
+        w = np.array([0.0, x1])
+        grad = np.array([w[0] - 1.0, w[1] + 1.0])  # (H = I: Jrᵀr)
+        d, _, free = bounded_step(H, Jg, grad, np.zeros(0), w, lbx, ubx, np.zeros(2, bool))
+        assert d[0] == pytest.approx(1.0)
+        assert bool(d[1] == 0.0 and 1 not in free) is held, (x1, d)
+    # a variable at its bound the step moves inwards is free
+    w = np.array([0.0, 9e-8])
+    d, _, free = bounded_step(H, Jg, np.array([-1.0, -1.0]), np.zeros(0), w, lbx, ubx, np.zeros(2, bool))
+    assert 1 in free and d[1] == pytest.approx(1.0)

@@ -124,3 +124,65 @@ def test_ipopt_is_given_a_dense_gradient(one_run_problem):
     prob, _ = one_run_problem
     grad = prob.ipopt.get_function("nlp_grad_f")  # (the gradient the solver hands Ipopt)
     assert grad.sparsity_out(1).nnz() == prob.n_w == grad.size1_out(1)
+
+
+def test_ipopt_keeps_the_iteration_limit_of_each_solve(one_run_problem):
+    """The iteration limit is read at each solve, so ``Problem.tuned(max_iter=…)`` holds
+    without building Ipopt again (the diagnosis's held-magnitude solves rely on it)."""
+    prob, w = one_run_problem
+    off = np.array(w, float)
+    off[: prob.n_theta] *= 1.1
+    with prob.tuned(max_iter=2, stat_tol=1e-12, stall_tol=1e-12):
+        short = prob.solve(off)
+    assert short["status"] == "Maximum_Iterations_Exceeded" and not short["success"]
+    assert short["iterations"] == 2
+    assert prob.solve(off)["iterations"] > 2  # (and the limit is the problem's own again)
+
+
+def test_ipopt_asks_the_callers_give_up_as_the_sqp_does(one_run_problem):
+    """A caller's ``give_up(iteration, ½χ², promised gain)`` stops Ipopt with
+    ``Stopped_Cannot_Matter`` at the iterate it was asked about; ``give_up_far`` is
+    asked away from continuity (or with no ``give_up``)."""
+    prob, w = one_run_problem
+    off = np.array(w, float)
+    off[: prob.n_theta] *= 1.1
+    asked = []
+
+    def give_up(it, half_chi2, promised):
+        asked.append((it, half_chi2, promised))
+        return it >= 1
+
+    prob.give_up, prob.give_up_far = None, give_up
+    try:
+        res = prob.solve(off)
+    finally:
+        prob.give_up, prob.give_up_far = None, None
+    assert res["status"] == "Stopped_Cannot_Matter" and not res["success"]
+    assert [a[0] for a in asked] == [0, 1] and res["iterations"] == 1
+    # the numbers it is given are the iterate's: ½χ² there, and a gain the step promises
+    assert np.isclose(asked[0][1], 0.5 * np.sum(prob.residuals(off) ** 2))
+    assert asked[0][2] > 0
+    assert np.isclose(res["f"], asked[1][1])
+
+
+def test_where_ipopt_ends_stuck_the_sqp_goes_on_with_the_iterations_left(one_run_problem, monkeypatch):
+    """Ipopt stuck (or failing on its own) with iterations left: the Gauss–Newton SQP goes
+    on from its end for the iterations left, and the result says so; stopped by its caller
+    or at the iteration limit, it is not handed over."""
+    prob, w = one_run_problem
+    off = np.array(w, float)
+    off[: prob.n_theta] *= 1.05
+    ipopt_end = prob.solve_ipopt(off)  # (a point as good as Ipopt's own end)
+    stuck = dict(ipopt_end, status="Stuck", success=False, iterations=7)
+    monkeypatch.setattr(prob, "solve_ipopt", lambda *a, **k: dict(stuck))
+    sqp_limits = []
+    solve_sqp = prob._solve_sqp
+    monkeypatch.setattr(prob, "_solve_sqp", lambda *a: sqp_limits.append(prob.opts.max_iter) or solve_sqp(*a))
+    with prob.tuned(max_iter=30):
+        res = prob.solve(off)
+    assert sqp_limits == [23] and res["handed_over"] == "Stuck" and res["success"], res["status"]
+    assert res["iterations"] > 7 and res["solver"] == "ipopt" and "ipopt_status" in res
+    for status in ("Stopped_Cannot_Matter", "Maximum_Iterations_Exceeded"):
+        stuck["status"] = status
+        sqp_limits.clear()
+        assert prob.solve(off)["status"] == status and not sqp_limits
