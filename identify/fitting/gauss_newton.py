@@ -94,7 +94,7 @@ class GaussNewtonSQP(MeritLineSearch):
             return res
         self.central_differences()
         try:
-            more = (self.solve_ipopt(res["w"], fixed) if self.opts.solver == "ipopt"
+            more = (self._ipopt_then_sqp(res["w"], fixed, False) if self.opts.solver == "ipopt"
                     else self._solve_gn_resolved(res["w"], fixed))
         except Exception as err:  # the shared solution stands
             log.info("the solve on the covariance's differences after a shared one failed: %s", err)
