@@ -240,7 +240,10 @@ class IpoptSolver:
                  # not say which iterations were restoration ones)
                  "output_file": self._ipopt_log.path, "file_print_level": 5}
         common = dict(oracle, print_time=False, calc_lam_p=False, calc_multipliers=False, error_on_fail=False,
-                      iteration_callback=self._ipopt_test)
+                      iteration_callback=self._ipopt_test,
+                      # (a trial point where an arc cannot be integrated gives NaN, which Ipopt
+                      # answers by a shorter step: not a warning for the user's terminal)
+                      show_eval_warnings=False)
         nlp = {"x": w, "f": f, "g": g}
         self.ipopt = ca.nlpsol("identify", "ipopt", nlp, dict(common, ipopt=ipopt))
         # A solve that starts at continuity (a re-solve after a sequence change, on other
