@@ -413,10 +413,11 @@ def _cmd_demo(args) -> int:
         raise CLIError(f"{data}: bundled data not found (installed without the repository?); "
                        "pass --data DIR")
     out = Path(args.out)
-    fit_args = argparse.Namespace(
-        coating=args.coating, law="exponential", free=None, fix=["v_stick=1e-5"], bound=None, start=None,
-        free_offset=False, multistart=0, seed=None, solver="gauss-newton", trigger="uniform", profile=None,
-        sequence_trials=None, json=str(out / "fit.json"), plots=str(out / "figures"))
+    # the fit command's own defaults (a hand-kept copy of them drifted: it kept the old solver)
+    fit_parser = argparse.ArgumentParser(add_help=False)
+    _add_fit_arguments(fit_parser, json_required=True)
+    fit_args = fit_parser.parse_args(["--coating", args.coating, "--law", "exponential", "--fix", "v_stick=1e-5",
+                                      "--json", str(out / "fit.json"), "--plots", str(out / "figures")])
     print(f"demo: fitting {data} (synthetic, made with v_stick = 1e-5 m/s; true values from the "
           f"{args.coating} preset shown beside the estimates)", file=sys.stderr)
     truth = parameter_set(args.coating)
