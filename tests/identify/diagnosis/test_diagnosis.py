@@ -814,8 +814,10 @@ def test_a_named_effect_ends_the_diagnosis_without_measuring_it_twice(offset_nam
 def test_a_named_model_decides_its_sequence_from_the_detected_one_too(offset_baseline):
     """The baseline's fit moved triggers to suit a model without the offset; the named
     model's sequence is decided again from its own (where it stands here) and from the
-    sequence as detected, and the lower excess χ² is kept (measured: χ² 2996.6 on the
-    baseline's sequence, 2557.2 from the detected one), then measured in round 2."""
+    sequence as detected, and the lower excess χ² is kept, then measured in round 2
+    (measured after the SQP's baseline: χ² 2996.6 on the baseline's sequence, 2557.2 from
+    the detected one, kept; after Ipopt's: 2613.5 on the baseline's, decided from there to
+    2557.15 with 11 triggers moved, kept over the detected one's)."""
     from identify.diagnosis.resequence import as_detected
 
     runs = offset_baseline.problem.runs
@@ -826,9 +828,10 @@ def test_a_named_model_decides_its_sequence_from_the_detected_one_too(offset_bas
     res = diagnose(None, baseline=offset_baseline,
                    options=DiagnosisOptions(effects=("load_offset",), resequence=True), progress=said.append)
     assert res.effects == ["load_offset"], res.report()
-    line = next(m for m in said if m.startswith("  from the sequence as detected (the fits' changes undone)"))
+    assert "  and from the sequence as detected" in said  # both tried
+    line = next(m for m in said if " trigger(s) moved, " in m and m.rstrip().split()[-2] == "->")
     before, after = (float(x) for x in line.rsplit("χ² ", 1)[1].split(" -> "))
-    assert after < before - 100, line
+    assert after < before - 20 and after < 2600, line
     assert res.timing["refits"] == 3  # the baseline, the candidate, and the named model on its new sequence
     assert res.final["values"]["load_offset"] == pytest.approx(2e-6, rel=0.05)  # (± 3 of its 1.6 % errors)
 
