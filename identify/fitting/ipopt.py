@@ -31,8 +31,9 @@ WARM_FEAS = 1e-4  # (µm) a start this close to continuity is warm (LOOSE_FEAS_T
 # statistical tolerance among iterates within twice it. Measured: after 11 slips were
 # inserted into a calibration fit, Ipopt's full steps cycled with period 4 (|g| 2e-2,
 # 1e-2, 5e-3, 6e-3 µm; ½χ² 159-186) for 100 iterations at μ = 0.1; on a baseline fitted
-# without its load offset it sat at |g| ~5e-9 µm, ½χ² unchanged, to the iteration limit.
-# The SQP, whose ℓ1 merit cannot cycle, takes over (Problem.solve).
+# without its load offset (before convergence.BOUND_NEAR) it sat at |g| ~5e-9 µm, ½χ²
+# unchanged, to the iteration limit. The SQP, whose line search must lower its ℓ1 merit
+# at every step, takes over (Problem.solve).
 STUCK_ITERS = 15
 STUCK = Status.STUCK.value
 
