@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 
@@ -222,6 +224,14 @@ class FitOptions:
         for attr, sub in nested.items():
             if sub:
                 top[attr] = replace(top.get(attr, getattr(self, attr)), **sub)
+        if not self.free and "free" not in top:
+            # a copy that holds every parameter (a mode-sequence trial's,
+            # identify.fitting.mode_sequence.trials.held_options) stays one: replace()
+            # would run the checks a fit's options must pass, and refuse it
+            out = copy.copy(self)
+            for name, value in top.items():
+                object.__setattr__(out, name, value)
+            return out
         return replace(self, **top)
 
     def __post_init__(self):

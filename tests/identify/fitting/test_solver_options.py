@@ -186,3 +186,15 @@ def test_where_ipopt_ends_stuck_the_sqp_goes_on_with_the_iterations_left(one_run
         stuck["status"] = status
         sqp_limits.clear()
         assert prob.solve(off)["status"] == status and not sqp_limits
+
+
+def test_evolve_keeps_a_held_copy_held():
+    """A mode-sequence trial holds every parameter (FitOptions refuses that for a fit);
+    the solver's hand-over evolves its options for the iterations left, and once failed
+    there with "free: at least one parameter must be free"."""
+    from identify.fitting.mode_sequence.trials import held_options
+
+    held = held_options(FitOptions(max_iter=50))
+    new = held.evolve(max_iter=7, stall_tol=1.0)
+    assert new.free == () and new.max_iter == 7 and new.stop.stall_tol == 1.0
+    assert held.max_iter == 50  # the original untouched
