@@ -19,7 +19,7 @@ import numpy as np
 
 from identify import interrupts
 from identify.fitting import best_so_far
-from identify.fitting.mode_sequence.decide import decide_sequence
+from identify.fitting.mode_sequence.decide import decide_sequence, worse_sequence
 from identify.fitting.options import FitError, FitOptions
 from identify.fitting.problem import Problem
 from identify.fitting.rundata import RunData, make_run_data
@@ -520,10 +520,15 @@ def _decided_again(solves: _Solves, prob, best, model, values, opts, start_sourc
     Gauss–Newton SQP had decided there (from its own first basin: χ² 5457.2, the
     truth-started fit's) were never tried from it."""
     say("the mode sequence decided again, from the better solution")
-    prob2, best2 = decide_sequence(prob, best, model, values, opts, say)
+    prob2, best2 = decide_sequence(prob, dict(best), model, values, opts, say)
+    if not any(best2.get(k) for k in ("triggers_moved", "slips_inserted", "slips_removed")):
+        return prob, best, start_source, rivals  # (nothing changed: the solution stands as solved)
+    # kept only where it is no worse (the fit's own rule) and not a failed solve in place of
+    # a converged one (measured: a load-offset baseline's decision moved nothing on net and
+    # its re-solve ran to the iteration limit)
+    if worse_sequence(prob, best, prob2, best2) is not None or (best.get("success") and not best2.get("success")):
+        return prob, best, start_source + " -> the mode sequence decided again from it: not kept", rivals
     solves.prob = prob2
-    if prob2 is prob and not any(best2.get(k) for k in ("triggers_moved", "slips_inserted", "slips_removed")):
-        return prob, best, start_source, rivals
     start_source += (f" -> the mode sequence decided again from it ({best2['triggers_moved']} trigger(s) moved, "
                      f"{best2['slips_inserted']} inserted, {best2['slips_removed']} removed)")
     return prob2, best2, start_source, []

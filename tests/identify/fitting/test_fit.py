@@ -2186,10 +2186,39 @@ def test_a_better_basin_found_after_the_sequence_was_decided_decides_it_again(sm
 
     def spread(solves, best, start, start_source, *args):
         better.update(best, f=best["f"] - 1.0)
-        return better, start, start_source + " -> (a better basin, stood in)", ["a rival of the old problem"]
+        return better, start, start_source + " -> (a better basin, stood in)", []
 
     monkeypatch.setattr(fit_mod, "decide_sequence", decide)
     monkeypatch.setattr(fit_mod, "_spread_if_suspect", spread)
     res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}))
-    assert len(decided_from) == 2 and decided_from[1] is better
+    assert len(decided_from) == 2 and decided_from[1]["w"] is better["w"] and decided_from[1]["f"] == better["f"]
+    assert res.solver["success"]
+
+
+def test_a_sequence_decided_again_that_ends_worse_is_not_kept(small_traces, monkeypatch):
+    """The decision from the better basin is kept only where it is no worse and no failed
+    solve replaces a converged one (measured: a load-offset baseline's decision moved
+    nothing on net, and its re-solve ran to the iteration limit at χ² 15812 against 12110)."""
+    import importlib
+
+    fit_mod = importlib.import_module("identify.fitting.driver")
+    real_decide = fit_mod.decide_sequence
+    calls = []
+
+    def decide(prob, best, *args, **kwargs):
+        calls.append(best)
+        if len(calls) == 1:
+            return real_decide(prob, best, *args, **kwargs)
+        # the second decision: "changed" the sequence and failed
+        return prob, dict(best, f=best["f"] + 100.0, w=best["w"] * 1.01, success=False,
+                          status="Maximum_Iterations_Exceeded", triggers_moved=3, slips_inserted=0, slips_removed=0)
+
+    def spread(solves, best, start, start_source, *args):
+        return dict(best, f=best["f"] - 1.0), start, start_source, []
+
+    monkeypatch.setattr(fit_mod, "decide_sequence", decide)
+    monkeypatch.setattr(fit_mod, "_spread_if_suspect", spread)
+    res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}))
+    assert len(calls) == 2
+    assert res.start_source.endswith("the mode sequence decided again from it: not kept")
     assert res.solver["success"]
