@@ -255,8 +255,8 @@ def _add_fit_arguments(p, json_required: bool):
                    help="the mode-sequence repairs to make, of triggers, missed, batch, ambiguous, misfit "
                         "(default: all; 'none' fits the sequence as detected)")
     p.add_argument("--solver", default="ipopt", choices=("ipopt", "gauss-newton"),
-                   help="Ipopt (default) or the toolkit's own Gauss-Newton SQP, which ends at the same "
-                        "point, slower")
+                   help="Ipopt (default) or the toolkit's own Gauss-Newton SQP: slower, and on some hard "
+                        "data sets it ends in a better basin (README, Known limits)")
     p.add_argument("--trigger", default="uniform", choices=("uniform", "interval"),
                    help="trigger encoding: uniform residuals (default), or intervals solved last "
                         "(for noiseless data, where the uniform's pull biases by ~2e-3; not for diagnose)")

@@ -76,7 +76,8 @@ class FitOptions:
         Gauss–Newton Hessian and exact constraint Jacobians, stopped by the statistical
         test of :mod:`identify.fitting.convergence`. ``gauss-newton``: the toolkit's own
         constrained Gauss–Newton SQP with an ℓ1-merit line search (Bock's method for
-        multiple shooting); it ends where Ipopt ends, 3-4× slower (README).
+        multiple shooting); it ends where Ipopt ends on the benchmark sets, 3-4×
+        slower, but on some hard data sets in a better basin (README, Known limits).
     staged_start : bool
         Start from the trigger and slip-length stages of :mod:`identify.fitting.start`.
     max_iter, tol : iteration limit; tolerance on the relative step and feasibility.
