@@ -2196,9 +2196,9 @@ def test_a_better_basin_found_after_the_sequence_was_decided_decides_it_again(sm
 
 
 def test_a_sequence_decided_again_that_ends_worse_is_not_kept(small_traces, monkeypatch):
-    """The decision from the better basin is kept only where it is no worse and no failed
-    solve replaces a converged one (measured: a load-offset baseline's decision moved
-    nothing on net, and its re-solve ran to the iteration limit at χ² 15812 against 12110)."""
+    """A failed solve never replaces a converged one (a change that ends worse by the fit's
+    own rule is undone inside decide_sequence already): here the second decision is stood
+    in for by one that moved triggers and ran to its iteration limit."""
     import importlib
 
     fit_mod = importlib.import_module("identify.fitting.driver")
@@ -2222,3 +2222,34 @@ def test_a_sequence_decided_again_that_ends_worse_is_not_kept(small_traces, monk
     assert len(calls) == 2
     assert res.start_source.endswith("the mode sequence decided again from it: not kept")
     assert res.solver["success"]
+
+
+def test_a_sequence_decided_again_that_converges_is_kept_and_drops_the_old_rivals(small_traces, monkeypatch):
+    """The branch set 12 took: the decision from the better basin changed the sequence and
+    converged; the fit ends there, says so in its start line, and the spread starts' rivals
+    (solutions of the problem before) no longer enter the uniqueness check."""
+    import importlib
+
+    fit_mod = importlib.import_module("identify.fitting.driver")
+    real_decide = fit_mod.decide_sequence
+    calls, flagged = [], []
+
+    def decide(prob, best, *args, **kwargs):
+        calls.append(best)
+        if len(calls) == 1:
+            return real_decide(prob, best, *args, **kwargs)
+        return prob, dict(best, triggers_moved=2, slips_inserted=1, slips_removed=0)
+
+    def spread(solves, best, start, start_source, *args):
+        return dict(best, f=best["f"] - 1.0), start, start_source, [dict(best, f=best["f"] + 0.5)]
+
+    real_flag = fit_mod.flag_rivals
+    monkeypatch.setattr(fit_mod, "decide_sequence", decide)
+    monkeypatch.setattr(fit_mod, "_spread_if_suspect", spread)
+    monkeypatch.setattr(fit_mod, "flag_rivals", lambda result, prob, best, rivals: (
+        flagged.append(list(rivals)), real_flag(result, prob, best, rivals)))
+    res = fit(small_traces, options=FitOptions(fixed={"v_stick": V_STICK}))
+    assert len(calls) == 2
+    assert res.start_source.endswith("the mode sequence decided again from it (2 trigger(s) moved, 1 inserted, "
+                                     "0 removed)")
+    assert flagged == [[]]
