@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from identify.model.scopes import parse
+
 __all__ = ["Layout", "FeatureValues", "feature_values", "gap"]
 
 UM = 1e6
@@ -28,12 +30,22 @@ UM = 1e6
 @dataclass
 class Layout:
     """Which run each residual row, constraint row and decision variable belongs to
-    (−1: shared, i.e. the model parameters)."""
+    (−1: shared, i.e. the model parameters); ``theta_run``: the run a per-run parameter
+    belongs to (:mod:`identify.model.scopes`; −1 for the others). A held-out run's own
+    parameters are estimated from its own frames, as its other variables are."""
 
     row_run: np.ndarray
     con_run: np.ndarray
     var_run: np.ndarray
     groups: dict
+    theta_run: np.ndarray | None = None
+
+    def own_vars(self) -> np.ndarray:
+        """The run of every decision variable, per-run parameters counted as their run's."""
+        own = self.var_run.copy()
+        if self.theta_run is not None:
+            own[: self.theta_run.size] = self.theta_run
+        return own
 
     @classmethod
     def of(cls, prob) -> Layout:
@@ -50,7 +62,10 @@ class Layout:
         var[prob.i_s : prob.i_s + prob.n_s] = prob.ev_run[: prob.n_s]
         # constraints: slip-length continuity per slip, then the start positions'
         con = np.r_[prob.ev_run, prob.ev_run[prob.ev_next] if prob.n_s else np.zeros(0, int)]
-        return cls(row_run=rows.astype(int), con_run=con.astype(int), var_run=var, groups=grp)
+        names = [r.name for r in prob.runs]
+        theta_run = np.array([names.index(parse(n)[2]) if parse(n)[1] == "run" and parse(n)[2] in names else -1
+                              for n in prob.theta.names], int)
+        return cls(row_run=rows.astype(int), con_run=con.astype(int), var_run=var, groups=grp, theta_run=theta_run)
 
 
 @dataclass

@@ -107,7 +107,7 @@ def heldout_residuals(prob, w: np.ndarray, folds: Sequence, evaluated=None, refi
         fold = list(fold)
         in_rows = np.isin(lay.row_run, fold)
         in_cons = np.isin(lay.con_run, fold)
-        in_vars = np.isin(lay.var_run, fold)
+        in_vars = np.isin(lay.own_vars(), fold)
         # 1) the fit without the fold
         W = sp.diags((~in_rows).astype(float))
         Jk = W @ Jr
@@ -193,9 +193,12 @@ def exact_fold(prob, w: np.ndarray, fold: Sequence[int]):
     kept = [i for i in range(len(prob.runs)) if i not in fold]
     n_th = prob.n_theta
     th = w[:n_th].copy()
+    # a per-run parameter moves only in the sub-problem of its run (elsewhere it acts on nothing)
+    theta_run = Layout.of(prob).theta_run
+    own = np.isin(theta_run, fold)
     if kept:
         sub, w_sub = _subproblem(prob, w, kept)
-        sol = sub.solve(w_sub)
+        sol = sub.solve(w_sub, fixed={i: float(w_sub[i]) for i in np.nonzero(own)[0]} or None)
         if not (np.all(np.isfinite(sol["w"])) and np.isfinite(sol["f"])):
             raise RuntimeError(f"the refit without fold {fold} failed: {sol['status']}")
         th = sol["w"][:n_th]
@@ -203,8 +206,9 @@ def exact_fold(prob, w: np.ndarray, fold: Sequence[int]):
     w_h[:n_th] = th
     if held.E:
         held.size_arcs(w_h)
-    sol = held.solve(w_h, fixed={i: float(th[i]) for i in range(n_th)})
+    sol = held.solve(w_h, fixed={i: float(th[i]) for i in range(n_th) if not own[i]})
     r_h = held.residuals(sol["w"])
+    th = np.where(own, sol["w"][:n_th], th)
     if not np.all(np.isfinite(r_h)):
         raise RuntimeError(f"the held-out runs {fold} could not be predicted: {sol['status']}")
     if r_h.size != int(np.isin(Layout.of(prob).row_run, fold).sum()):

@@ -285,6 +285,10 @@ def _one_round(st: _State) -> bool:
     opts, say = st.opts, st.say
     tasks, skipped = candidate_tasks(st.remaining, st.current, st.runs, st.fopts, st.folds, opts, st.threads,
                                      where_hint=st.where0, regime_runs=st.regime_runs, at_magnitude=st.at_magnitude)
+    grouped = {e for g in st.confounded for e in g["effects"]}
+    st.confounded.extend(dict(effects=[c.effect], confounded_with=list(c.confounded_with), closes=False,
+                              why=c.reason.removeprefix("confounded: "))
+                         for c in skipped if c.confounded_with and c.effect not in grouped)
     results = _refits(st, tasks)
     st.n_refits += len(tasks)
     base = next(r for r in results if r.effect is None)
@@ -346,7 +350,7 @@ def _add_named(st: _State, chosen: CandidateResult, adopted: dict | None, scored
     st.at_magnitude = {c.effect: c.at_magnitude for c in scored
                        if (c.at_magnitude or {}).get("better") and c.effect != chosen.effect}
     st.remaining += [e for e in st.at_magnitude if e not in st.remaining]
-    eff = get_effect(chosen.effect)
+    eff = get_effect(chosen.effect, st.runs)
     if adopted:  # named on the mode sequence it decided: go on from there, as measured there
         st.current, st.runs, st.final_res = adopted["current"], adopted["runs"], adopted["measured"]
     else:
@@ -445,7 +449,7 @@ def _profile_held(held: list, current: dict, runs: list, fopts, opts: DiagnosisO
         return (dict(effect=None, named=False, note=f"regime profile: not run, {' | '.join(names)}: {why}"),
                 [c.but(confounded_with=[n for n in names if n != c.effect]) for c in yes])
     c = yes[0]
-    eff = get_effect(c.effect)
+    eff = get_effect(c.effect, runs)
     if eff.law is not None or len(eff.parameters) != 1 or c.w_at_magnitude is None:
         return None, []
     tasks, _ = candidate_tasks([c.effect], current, runs, fopts, [], opts, 1, [], regime_runs=regime_runs)
@@ -535,7 +539,7 @@ def _own_sequence(c, base, current, runs, fopts, prob0, folds, opts, threads, ex
         return res
 
     try:
-        eff = get_effect(c.effect)
+        eff = get_effect(c.effect, runs)
         cand = dict(values=dict(c.values), free=tuple(c.free), law=c.law, w=c.w, ev_M=c.ev_M,
                     n_theta=len(c.free), chi2=c.chi2, n_eff=c.n_eff,
                     bounds={**current.get("bounds", {}), **dict(eff.bounds)})

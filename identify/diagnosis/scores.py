@@ -40,7 +40,7 @@ def score_round(results, base: CandidateResult, opts, n_cand, fold_names=None) -
 
 def score_one(c: CandidateResult, base: CandidateResult, opts, alpha_c: float, fold_names=None) -> CandidateResult:
     """One candidate scored against ``base`` (``alpha_c``: the Bonferroni-divided level)."""
-    eff = get_effect(c.effect)
+    eff = get_effect(c.effect).named(tuple(c.nulls or ()))
     c = c.but(parameters=list(eff.parameters) if eff.nested else list(c.free or []))
     if not c.ok:
         return c.but(note=c.status if c.status is not None else "failed", significant=False)

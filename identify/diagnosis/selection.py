@@ -120,13 +120,13 @@ def refit_beside(chosen, scored, base, current, runs, fopts, opts, threads, exec
     significant (ΔAIC −32.7) but confounded with μmax, μmin, τ, and a load offset of
     −40 ± 12 nN (ΔAIC −27.1; the data have none) was named; their residual changes were
     not parallel (cosine 0.57), so the tie rule of :func:`try_named` did not apply."""
-    eff = get_effect(chosen.effect)
+    eff = get_effect(chosen.effect, runs)
     if not eff.nested:
         return chosen, None  # another aging law is judged by ΔAIC against the current law, not nested
     own = {n: chosen.values[n] for n in eff.parameters if n in (chosen.values or {})}
     beside = list(chosen.beside or [])
     for rival in _rivals(chosen, scored):
-        reff = get_effect(rival.effect)
+        reff = get_effect(rival.effect, runs)
         nulls = eff.null_values(rival.values)
         free = tuple(rival.free)
         # one basin: its own estimates, the null or its nudges, and the leading ripple's
@@ -194,7 +194,7 @@ def interval_text(c):
     """Why ``c`` is undetermined (:func:`undetermined`), or None when it is not."""
     if not c.effect:
         return None
-    eff = get_effect(c.effect)
+    eff = get_effect(c.effect).named(tuple(c.nulls or ()))
     if not eff.nested:
         return None  # another law: judged by ΔAIC, no null to exclude
     nulls, est = c.nulls or {}, c.estimates or {}

@@ -32,8 +32,15 @@ def candidate_tasks(ids, current, runs, fopts, folds, opts, threads, where_hint,
     tasks = [CandidateTask(effect=None, law=current["law"], bounds=added, **common)]
     skipped = []
     for eid in ids:
-        eff = get_effect(eid)
+        eff = get_effect(eid, runs)
         why = eff.applicable(tuple(current["free"]), current["law"])
+        if why and eff.confounded_reason():
+            # (never named: the model's own parameters absorb it by construction)
+            mimics = [n for n in current["free"] if n in ("mu_max", "mu_min", "A", "mu_0", "B")]
+            skipped.append(CandidateResult(effect=eid, ok=False, reason=f"confounded: {why}",
+                                           status="not applicable", parameters=list(eff.parameters),
+                                           confounded_with=mimics, note=f"confounded: {why}"))
+            continue
         if why:
             skipped.append(CandidateResult(effect=eid, ok=False, reason=f"not applicable: {why}",
                                            status="not applicable", parameters=list(eff.parameters),

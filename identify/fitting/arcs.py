@@ -33,6 +33,7 @@ import numpy as np
 
 from identify import interrupts
 from identify.model.compiled import compiled
+from identify.model.params import SPECS
 from identify.model.symbolic import LENGTH_UNIT, SPEED_UNIT, TIME_UNIT, Model, arc_dae, transition
 
 __all__ = ["ArcFunctions", "arc_functions", "ARC_OUTPUTS", "N_ARC_JAC_OUTPUTS"]
@@ -175,9 +176,9 @@ class ArcFunctions:
         A[0] = np.asarray(x0_m, float) / LENGTH_UNIT
         A[1] = np.asarray(e0_m, float) / LENGTH_UNIT
         A[2] = state0
-        full = self.model.defaults(values)
         for j, name in enumerate(self.param_names):
-            A[3 + j] = full[name]
+            # (a per-run value comes as one number per arc: identify.model.scopes)
+            A[3 + j] = values[name] if name in values else SPECS[name].nominal
         A[self.index["k"]] = k
         A[self.index["Nb"]] = Nb
         A[self.index["fp"]] = fp

@@ -34,6 +34,7 @@ from identify.fitting.suspect import (
 )
 from identify.model.laws import get_law
 from identify.model.params import parameter_set
+from identify.model.scopes import device_label, is_scoped, parse, resolve
 from identify.model.symbolic import Model
 from identify.progress import Stage, reporter
 
@@ -256,12 +257,15 @@ def _fit(data, *, coating, options, true_values, progress):
     if not said and opts.stick_speed != "off":
         opts, final_opts, stick_note = _decide_stick(runs_ev, model, {**preset, **opts.start}, opts, final_opts, say)
         preset = parameter_set(coating, {n: v for n, v in opts.fixed.items()})
+    preset = _scoped_defaults(preset, opts)
     left = _LeftOut(excluded, say)
     run_data, stepping = _runs_to_fit(runs_ev, preset, opts, left, say)
+    _check_scopes(opts, run_data, left)
     start, start_source = start_values(run_data, law, preset, opts)
     from identify.fitting.problem import MEASUREMENT
 
-    values = {**model.defaults(preset), **{n: preset[n] for n in MEASUREMENT}, **start}
+    values = {**model.defaults(preset), **{n: preset[n] for n in MEASUREMENT},
+              **{n: v for n, v in preset.items() if is_scoped(n)}, **start}
     run_data = _creep_runs_checked(run_data, model, values, stepping, left)
     prob = _problem(run_data, model, values, opts, left, say)
     n_obs = prob.n_observations()
@@ -334,6 +338,33 @@ class _LeftOut:
             self.say(f"warning: {rd.name}: cannot be checked against the model later: {err}")
 
 
+def _scoped_defaults(preset: dict, opts: FitOptions) -> dict:
+    """The preset with a value for every per-run or per-device parameter the options name
+    (:mod:`identify.model.scopes`): its base parameter's, unless fixed or started."""
+    out = dict(preset)
+    for name in (*opts.free, *opts.start):
+        if is_scoped(name) and name not in out:
+            out[name] = out[parse(name)[0]]
+    return out
+
+
+def _check_scopes(opts: FitOptions, run_data, left) -> None:
+    """A per-run or per-device parameter must name a run or device that is fitted."""
+    runs = {r.name for r in run_data}
+    devices = {r.device or device_label(None, r.k) for r in run_data}
+    gone = dict(left.excluded)
+    for name in (*opts.free, *opts.fixed):
+        if not is_scoped(name):
+            continue
+        _, scope, label = parse(name)
+        known = runs if scope == "run" else devices
+        if label not in known:
+            why = f" (left out: {gone[label]})" if label in gone else ""
+            where = "free" if name in opts.free else "fixed"
+            raise FitError(f"{where}: {name} names no {scope} of the fitted data{why}; the {scope}s are "
+                           f"{', '.join(sorted(known)) or 'none'}", left.excluded)
+
+
 def _runs_to_fit(runs_ev, preset, opts, left: _LeftOut, say) -> tuple[list, dict]:
     """The runs' data for the NLP, and the runs that step between their slips under the
     stick option (name -> why); runs without slips are left out unless creep runs are used."""
@@ -372,7 +403,8 @@ def _creep_runs_checked(run_data, model, values, stepping, left: _LeftOut) -> li
             kept.append(r)
             continue
         try:
-            sim = simulate_run(model, values, RunConditions(r.k, r.Nb, r.fp, steps_of(r)),
+            sim = simulate_run(model, resolve(values, r.name, r.device or device_label(None, r.k)),
+                               RunConditions(r.k, r.Nb, r.fp, steps_of(r)),
                                SimulationOptions(record=False))
             if sim.regime == "creep":
                 kept.append(r)

@@ -13,6 +13,7 @@ import numpy as np
 
 from identify.fitting.arc_callback import ArcCallback, blockdiag_sparsity
 from identify.fitting.mode_sequence.triggers import START_SCALE_UM
+from identify.model.scopes import parse
 from identify.model.symbolic import LENGTH_UNIT
 
 __all__ = ["NLPExpressions"]
@@ -34,7 +35,10 @@ class NLPExpressions:
         shows only in frames taken during a slip, which the plateaus leave out.
         """
         out = ca.DM.zeros(self.P, 1)
-        if "drift_rate" in self.theta.names or self.values.get("drift_rate", 0.0) != 0.0:
+        if "drift_rate" in self.scoped_bases:  # a rate per run
+            rates = ca.vertcat(*[ca.MX(v) if not isinstance(v, ca.MX) else v for v in self.per_run(P, "drift_rate")])
+            out = out + ca.reshape(rates[self.pl_run.tolist()], -1, 1) * ca.DM(self.pl_mean_t)
+        elif "drift_rate" in self.theta.names or self.values.get("drift_rate", 0.0) != 0.0:
             out = out + P["drift_rate"] * ca.DM(self.pl_mean_t)
         if "exposure" in self.theta.names or self.values.get("exposure", 0.0) != 0.0:
             rows = []
@@ -63,21 +67,24 @@ class NLPExpressions:
             model_e = step * ca.DM(self.pl_mean_s) - x_um * LENGTH_UNIT + off * LENGTH_UNIT
             model_e = model_e + self._camera_terms(P, step)
             res.append(ca.sqrt(ca.DM(self.pl_n)) * (ca.DM(self.pl_mean_e) - model_e) / ca.DM(self.pl_sigma))
-        drift = P["drift_rate"]
-        for r in self.runs:
+        drift = self.per_run(P, "drift_rate")
+        for ri, r in enumerate(self.runs):
             if r.kind == "events" and r.s_nn > 0:
                 # a drift adds drift/fp per step to the staircase slope
-                res.append(math.sqrt(r.s_nn) * (step + drift / r.fp - r.slope_hat) / r.sigma)
+                res.append(math.sqrt(r.s_nn) * (step + drift[ri] / r.fp - r.slope_hat) / r.sigma)
         A, g = None, ca.MX(0, 1)
         if E:
             x_prev = x_um[self.ev_prev] * LENGTH_UNIT
             e0 = step * ca.DM(self.ev_step) - x_prev
-            Pev = dict(P, k=ca.DM(self.ev_k), Nb=ca.DM(self.ev_Nb))
+            Pev = self.event_params(P, ops=ca)
             z0 = self.start_state(self.start_positions(w), x_prev, e0, Pev, ops=ca)
             rows = [(x_prev / LENGTH_UNIT).T, (e0 / LENGTH_UNIT).T, z0.T]
             for n in self.arcs.param_names:
-                v = P[n]
-                rows.append(ca.repmat(v if isinstance(v, ca.MX) else ca.MX(v), 1, E))
+                v = Pev[n] if n in self.scoped_bases else P[n]
+                if n in self.scoped_bases:
+                    rows.append(ca.reshape(v, 1, -1))
+                else:
+                    rows.append(ca.repmat(v if isinstance(v, ca.MX) else ca.MX(v), 1, E))
             rows += [ca.DM(self.ev_k).T, ca.DM(self.ev_Nb).T, ca.DM(self.ev_fp).T, ca.DM(self.ev_M).T]
             A = ca.vertcat(*rows)
             # triggers: the previous arc's end state aged over the rest, in this interval
@@ -86,7 +93,7 @@ class NLPExpressions:
             rest = (self.ev_step[nx] - self.ev_step[pv] - self.ev_M[pv]) / self.ev_fp[pv]
             z_aged = self.law.rest(Y[1, pv].T, ca.DM(rest), P, ops=ca)
             z_before = self.law.rest(Y[1, pv].T, ca.DM(np.maximum(rest - 1 / self.ev_fp[nx], 0)), P, ops=ca)
-            Pn = dict(P, k=ca.DM(self.ev_k[nx]), Nb=ca.DM(self.ev_Nb[nx]))
+            Pn = self.event_params(P, nx, ops=ca)
             s_pos = self.position(z_aged, x_prev[nx], e0[nx], Pn, ops=ca, z_before=z_before)
             if not self.interval_triggers:
                 phi = w[self.i_phi : self.i_phi + self.n_phase]
@@ -108,8 +115,10 @@ class NLPExpressions:
                 g = ca.vertcat(g, START_SCALE_UM * (s_next - ca.reshape(self._s_target, -1, 1)))
                 if not self.interval_triggers:
                     res.append(math.sqrt(12) * (ca.reshape(s_all[self.ev_firsts.tolist()], -1, 1) - 0.5))
-        for r in self.creep_runs:
-            Pr = dict(P, k=r.k, Nb=r.Nb)
+        for ri, r in enumerate(self.runs):
+            if r.kind != "creep":
+                continue
+            Pr = self.run_params(P, ri)
             vp = r.fp * step
             zss = self.law.steady_state(vp, Pr, ops=ca)
             mu = self.law.static_coefficient(zss, Pr, ops=ca) + P["A"] * ca.log(1 + vp / P["vc"])
@@ -133,7 +142,7 @@ class NLPExpressions:
             # without it, two fewer integrations per arc and Jacobian
             topo = "topo_amp" in self.theta.names or self.values.get("topo_amp", 0.0) != 0.0
             rows = ([ix["x0_um"]] if topo else []) + [ix["e0_um"], ix["state0"]] \
-                + [ix[n] for n in self.theta.names if n in ix]
+                + [ix[n] for n in dict.fromkeys(parse(m)[0] for m in self.theta.names) if n in ix]
             self._cb_jac = ArcCallback("arc_jacs", self.arcs, E, opts.threads, True, self.counter, rows,
                                         scheme=opts.arc_jacobian)
             self._cb_val = ArcCallback("arcs", self.arcs, E, opts.threads, False, self.counter,

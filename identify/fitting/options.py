@@ -11,6 +11,7 @@ from identify.fitting.solver_options import SOLVER_FIELDS, GaussNewtonOptions, I
 from identify.model.laws import get_law
 from identify.model.params import spec
 from identify.model.plausible import check_parameters
+from identify.model.scopes import is_scoped, parse
 from identify.model.symbolic import Model
 
 DEFAULT_FREE = ("mu_max", "mu_min", "tau", "A")
@@ -245,7 +246,12 @@ class FitOptions:
         model = Model(get_law(self.law))
         allowed = set(model.parameter_names) | set(MEASUREMENT)
         for name in free:
-            if name not in allowed:
+            if is_scoped(name):
+                try:
+                    parse(name)
+                except ValueError as err:
+                    raise ValueError(f"free: {err}") from None
+            if parse(name)[0] not in allowed:
                 raise ValueError(
                     f"free: {name!r} is not a parameter of the {self.law} model; "
                     f"choose from {', '.join(model.parameter_names + MEASUREMENT)}"

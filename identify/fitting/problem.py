@@ -68,6 +68,7 @@ from identify.fitting.mode_sequence.triggers import TriggerRefinement, below_top
 from identify.fitting.nlp_expressions import NLPExpressions
 from identify.fitting.theta_map import ThetaMap as ThetaMap
 from identify.model.params import SPECS
+from identify.model.scopes import device_label, is_scoped, parse, run_scope_value
 from identify.model.symbolic import LENGTH_UNIT, Model
 
 __all__ = ["Problem", "ThetaMap", "MEASUREMENT"]
@@ -184,11 +185,52 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
     # ---------------------------------------------------------------- physics helpers
     def params(self, th) -> dict:
         """Model and measurement parameter values (numbers or MX), the free ones from
-        scaled ``th``."""
+        scaled ``th``; per-run and per-device values under their scoped names
+        (:mod:`identify.model.scopes`: :meth:`run_params`, :meth:`event_params` apply them)."""
         P = {n: self.values.get(n, SPECS[n].nominal) for n in self.model.parameter_names + MEASUREMENT}
+        P.update({n: v for n, v in self.values.items() if is_scoped(n)})
         ops = ca if isinstance(th, ca.MX) else np
         P.update(zip(self.theta.names, self.theta.from_scaled(th, ops=ops)))
         return P
+
+    @property
+    def scoped_bases(self) -> tuple:
+        """The parameters that take a per-run or per-device value in this problem."""
+        names = list(self.theta.names) + [n for n in self.values if is_scoped(n)]
+        return tuple(sorted({parse(n)[0] for n in names if is_scoped(n)}))
+
+    def run_device(self, ri: int) -> str:
+        r = self.runs[ri]
+        return r.device or device_label(None, r.k)
+
+    def per_run(self, P: Mapping, base: str):
+        """``base``'s value in each run (a list, numbers or MX), its scoped values applied."""
+        return [run_scope_value(P, base, self.runs[i].name, self.run_device(i)) for i in range(len(self.runs))]
+
+    def run_params(self, P: Mapping, ri: int) -> dict:
+        """P as run ``ri`` sees it: its conditions (k, Nb) and its scoped values."""
+        out = dict(P, k=self.runs[ri].k, Nb=self.runs[ri].Nb)
+        for base in self.scoped_bases:
+            out[base] = run_scope_value(P, base, self.runs[ri].name, self.run_device(ri))
+        return out
+
+    def event_params(self, P: Mapping, ev=None, ops=np) -> dict:
+        """P for the slips ``ev`` (indices, default all): their runs' conditions and scoped
+        values as vectors (columns of DM/MX with ``ops=casadi``)."""
+        ev = np.arange(self.E) if ev is None else np.asarray(ev, int)
+        runs = self.ev_run[ev]
+        if ops is ca:
+            out = dict(P, k=ca.DM(self.ev_k[ev]), Nb=ca.DM(self.ev_Nb[ev]))
+        else:
+            out = dict(P, k=self.ev_k[ev], Nb=self.ev_Nb[ev])
+        for base in self.scoped_bases:
+            vals = self.per_run(P, base)
+            if ops is ca:
+                col = ca.vertcat(*[ca.MX(v) if not isinstance(v, ca.MX) else v for v in vals])
+                out[base] = ca.reshape(col[runs.tolist()], -1, 1)
+            else:
+                out[base] = np.array([float(v) for v in vals])[runs]
+        return out
 
     def interval(self, x_prev_m, e0, P, ops=np):
         """Spring-force interval of the trigger step, [F_s(e0 − Δx), F_s(e0)] (N)."""

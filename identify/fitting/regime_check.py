@@ -52,6 +52,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from identify.model.scopes import device_label, resolve
+
 __all__ = ["RegimeRun", "RegimeCheck", "regime_check", "steps_of", "slips_text", "slip_floor", "MISMATCH_Z",
            "MERGE_STEPS", "SLIP_P"]
 
@@ -90,6 +92,7 @@ class RegimeRun:
     # largest merged slip after the run's first (0 without one; None: not recorded, and
     # then not compared: 0 would call the model's later slips a mismatch against noise)
     steady_slip_m: float | None = None
+    device: str = ""  # (identify.model.scopes: the run's per-device values)
 
     @classmethod
     def of(cls, rd) -> RegimeRun:
@@ -100,7 +103,7 @@ class RegimeRun:
         return cls(name=rd.name, k=float(rd.k), Nb=float(rd.Nb), fp=float(rd.fp), n_steps=steps_of(rd, minimum=1),
                    frame_rate=float(tr.frame_rate), step_m=float(tr.step_size), data_regime=str(ev.regime),
                    largest_slip_m=largest_slip(ev), noise_m=float(rd.sigma), frame_times_s=tuple(t.tolist()),
-                   steady_slip_m=largest_slip(ev, after_first=True))
+                   steady_slip_m=largest_slip(ev, after_first=True), device=rd.device)
 
     def conditions(self):
         from identify.simulation.hybrid import RunConditions
@@ -207,23 +210,24 @@ def regime_check(model, values: dict, runs) -> RegimeCheck | None:
         return None
     out, chi2, df = [], 0.0, 0
     for rr in runs:
+        run_values = resolve(values, rr.name, rr.device or device_label(None, rr.k))
         rec = dict(name=rr.name, data_regime=rr.data_regime, data_slip_um=rr.largest_slip_m * 1e6,
                    data_steady_slip_um=None if rr.steady_slip_m is None else rr.steady_slip_m * 1e6,
                    model_regime=None, model_slip_um=None,
                    model_steady_slip_um=None, mismatch=False, z=None, slip_z=None, error=None)
         try:
             # (recorded: the frames of a moving phase need its trajectory)
-            sim = simulate_run(model, values, rr.conditions(), SimulationOptions(record=True))
+            sim = simulate_run(model, run_values, rr.conditions(), SimulationOptions(record=True))
             # the data's frames; the step phase is known here (steps at n/fp)
             tr = sim.sample(frame_rate_Hz=rr.frame_rate, name=rr.name, times_s=rr.frame_times_s or None,
-                            exposure_s=float(values.get("exposure", 0.0)),
-                            drift_rate_m_per_s=float(values.get("drift_rate", 0.0)),
-                            offset_m=float(values.get("e_offset", 0.0)),
+                            exposure_s=float(run_values.get("exposure", 0.0)),
+                            drift_rate_m_per_s=float(run_values.get("drift_rate", 0.0)),
+                            offset_m=float(run_values.get("e_offset", 0.0)),
                             metadata=dict(step_size_nm=rr.step_m * 1e9, step_phase=0.0))
             ev = extract_events(tr, noise_m=rr.noise_m)
             # (read as the fit reads runs: one that steps between its slips under the
             # stick option is not fitted for them, the model's no more than the data's)
-            fitted_for_slips = make_run_data(ev, v_stick=float(values.get("v_stick", 0.0))).kind == "events"
+            fitted_for_slips = make_run_data(ev, v_stick=float(run_values.get("v_stick", 0.0))).kind == "events"
             slip, steady = largest_slip(ev), largest_slip(ev, after_first=True)
             excess = max(slip - rr.largest_slip_m, 0.0 if rr.steady_slip_m is None else steady - rr.steady_slip_m,
                          0.0)

@@ -14,7 +14,7 @@ import numpy as np
 from identify.fitting.estimates import ParameterEstimate
 from identify.fitting.intervals import standard_errors
 from identify.fitting.solver_outcome import unconverged_flag
-from identify.model.params import SPECS
+from identify.model.params import spec
 
 __all__ = ["CONFOUNDED", "UNDETERMINED_REL", "free_estimates", "natural_covariance", "correlations",
            "flag_confounded", "add_fixed_estimates", "run_table", "solver_record", "timing_record"]
@@ -33,7 +33,7 @@ def free_estimates(prob, w, C, scale, best: dict, gap: dict | None, start: Mappi
     params: dict = {}
     for i, (n, (se, _, ci)) in enumerate(zip(tm.names, standard_errors(tm, th, C, scale))):
         params[n] = ParameterEstimate(
-            name=n, value=float(vals[i]), stderr=se, ci95=ci, free=True, unit=SPECS[n].unit,
+            name=n, value=float(vals[i]), stderr=se, ci95=ci, free=True, unit=spec(n).unit,
             init=float(start.get(n, np.nan)), flag=_flag(tm, th, i, se, vals[i], best, gap),
             true=float(true_values[n]) if true_values and n in true_values else None,
         )
@@ -97,7 +97,7 @@ def add_fixed_estimates(params: dict, prob, true_values: Mapping | None) -> None
     for n in prob.model.friction_names + tuple(k2 for k2 in prob.opts.fixed if k2 not in prob.model.friction_names):
         if n not in params and n in prob.values:
             params[n] = ParameterEstimate(name=n, value=float(prob.values[n]), stderr=None, ci95=None,
-                                          free=False, unit=SPECS[n].unit,
+                                          free=False, unit=spec(n).unit,
                                           true=float(true_values[n]) if true_values and n in true_values else None)
 
 

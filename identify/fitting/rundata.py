@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from identify.model.scopes import device_label
+
 __all__ = ["RunData", "SIGMA_FLOOR", "steps_between_triggers"]
 
 SIGMA_FLOOR = 1e-12 / math.sqrt(12)  # m: rounding of the trace format's 6 decimals in µm
@@ -46,6 +48,7 @@ class RunData:
     steady_mean_e: float = float("nan")
     steady_se: float = float("nan")
     events: Any = None
+    device: str = ""  # the trace's device, else its nominal spring constant (identify.model.scopes)
 
     def stick_edge(self, values: dict) -> str | None:
         """Why this run sits on the stick threshold's knife edge, or None.
@@ -119,7 +122,8 @@ def make_run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray |
     # noiseless files still carry the print precision (1e-6 µm): uniform rounding error
     sigma = max(float(ev.noise_m), SIGMA_FLOOR)
     base = dict(name=tr.name, k=tr.spring_constant, Nb=tr.normal_load, fp=tr.step_frequency,
-                step_nominal=tr.step_size, sigma=sigma, n_frames=len(tr.time_s), events=ev)
+                step_nominal=tr.step_size, sigma=sigma, n_frames=len(tr.time_s), events=ev,
+                device=device_label(tr.device, tr.spring_constant))
     if (ev.regime != "stick-slip" and not _resolved_slips(ev)) or steps_between_triggers(ev, v_stick):
         # steady part: the second half of the run (after any loading transient)
         e = tr.elongation[len(tr.elongation) // 2:]

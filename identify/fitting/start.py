@@ -52,7 +52,7 @@ def _aging_residuals(prob, names, values, tab):
     P = dict(values)
     step = model.step(P)
     ev = tab["ev"]
-    Pev = dict(P, k=prob.ev_k[ev], Nb=prob.ev_Nb[ev])
+    Pev = prob.event_params(P, ev)
     e0 = step * prob.ev_step[ev] - tab["x_prev"]
     z0 = law.rejuvenated_state(P) + _seed(law, P)
     z = law.rest(z0, tab["rest"], P)
@@ -144,9 +144,9 @@ def staged_start(prob, start_values: dict, max_slips: int = 80, seed: int = 0) -
             e0 = step * prob.ev_step[ev] - sub["x_prev"]
             # each arc starts from its data trigger (capacity mid-interval): a valid
             # trigger whatever the parameters, unlike a state aged by the model
-            Pev = dict(P, k=prob.ev_k[ev], Nb=prob.ev_Nb[ev])
+            Pev = prob.event_params(P, ev)
             z = prob.mid_state(sub["x_prev"], e0, Pev)
-            A = arcs.inputs(sub["x_prev"], e0, z, P, prob.ev_k[ev], prob.ev_Nb[ev], prob.ev_fp[ev],
+            A = arcs.inputs(sub["x_prev"], e0, z, Pev, prob.ev_k[ev], prob.ev_Nb[ev], prob.ev_fp[ev],
                             np.minimum(prob.ev_gap[ev], prob.opts.max_arc_steps))
             Y = arcs.evaluate(A, prob.opts.threads)
             return (Y[0] - dx_data) / sig

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from identify.model.params import SPECS
+from identify.model.params import spec
 
 __all__ = ["ThetaMap"]
 
@@ -28,7 +28,7 @@ class ThetaMap:
     def build(cls, names, bounds: Mapping[str, tuple]):
         scale, logs, lo, hi = [], [], [], []
         for n in names:
-            s = SPECS[n]
+            s = spec(n)
             b = bounds.get(n, (s.lower, s.upper))
             scale.append(s.scale)
             use_log = s.log and b[0] > 0

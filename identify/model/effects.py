@@ -14,11 +14,12 @@ compared by ΔAIC, not by a likelihood-ratio test.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping
 from typing import ClassVar
 
-from identify.model.params import SPECS
+from identify.model.params import spec
 
 __all__ = ["Effect", "EFFECTS", "get_effect", "effect_ids"]
 
@@ -45,6 +46,14 @@ class Effect:
     magnitude : (parameter, realistic value, unit shown)
         The parameter and value used to simulate a data set with the effect on (tests,
         benchmark), and its display unit.
+    scope : "run", "device" or None
+        One value of each parameter per run or per device (:mod:`identify.model.scopes`)
+        instead of one for all. Such a candidate is bound to the data's runs
+        (:meth:`bind`) before it is used: its parameters are then the scoped names.
+    reference : bool
+        For a per-device candidate: one device (the one with the most runs) keeps the
+        null, the others are free: where only ratios between devices are determined (a
+        spring constant, whose common factor μ·N/k absorbs).
     """
 
     id: ClassVar[str] = ""
@@ -54,6 +63,11 @@ class Effect:
     law: ClassVar[str | None] = None
     touches: ClassVar[tuple] = ()
     magnitude: ClassVar[tuple] = ()
+    scope: ClassVar[str | None] = None
+    reference: ClassVar[bool] = False
+    labels: tuple = ()  # bound: the runs or devices with a parameter of their own
+    reference_label: str | None = None  # bound: the device kept at the null
+    n_labels: int = 0  # bound: how many runs or devices the data have in this scope
 
     def __init_subclass__(cls, **kw):
         super().__init_subclass__(**kw)
@@ -80,14 +94,74 @@ class Effect:
         """The values of this candidate's parameters that give back ``baseline``."""
         return {n: (baseline[n] if self.null.get(n) is None else float(self.null[n])) for n in self.parameters}
 
+    def bind(self, runs) -> Effect:
+        """This candidate for ``runs`` (objects with ``name``, ``kind``, ``k`` and
+        ``device``, as :class:`identify.fitting.rundata.RunData`): a per-run or per-device
+        candidate gets one parameter per run (runs fitted by their frames: a creeping
+        run's drift leaves no trace in its steady level) or per device, the others are
+        returned as they are."""
+        if self.scope is None or runs is None:
+            return self
+        from identify.model.scopes import device_label, scoped
+
+        if self.scope == "run":
+            order = [r.name for r in runs if getattr(r, "kind", "events") == "events"]
+        else:
+            order = [getattr(r, "device", "") or device_label(None, r.k) for r in runs]
+        counts = {lab: order.count(lab) for lab in dict.fromkeys(order)}
+        labels = list(counts)
+        ref = None
+        if self.reference and labels:
+            ref = max(sorted(labels), key=lambda lab: counts[lab])  # most runs; ties: first by name
+            labels.remove(ref)
+        bound = copy.copy(self)
+        base = self.parameters
+        bound.parameters = tuple(scoped(b, self.scope, lab) for b in base for lab in labels)
+        bound.null = {scoped(b, self.scope, lab): self.null.get(b) for b in base for lab in labels}
+        bound.bounds = {scoped(b, self.scope, lab): self.bounds[b] for b in base if b in self.bounds for lab in labels}
+        bound.labels, bound.reference_label, bound.n_labels = tuple(labels), ref, len(counts)
+        return bound
+
+    def named(self, parameters) -> Effect:
+        """This per-run or per-device candidate with the scoped ``parameters`` a refit freed
+        (a record's own: its nulls' names), for reading the record without its runs."""
+        if self.scope is None:
+            return self
+        bound = copy.copy(self)
+        bound.parameters = tuple(parameters)
+        return bound
+
     def applicable(self, free: tuple, law: str) -> str | None:
         """Why this candidate cannot extend a baseline with these free parameters and law
         (``None``: it can)."""
+        if self.scope is not None and self.n_labels and not self.labels:
+            return self.confounded_reason()
         if self.law is not None and self.law == law:
             return f"the baseline already uses the {law} law"
         taken = [n for n in self.parameters if n in free]
         if taken and self.law is None:
             return f"{', '.join(taken)} already free in the baseline"
+        # a parameter free in another scope (global beside per-run, or per-device
+        # beside global): the two would share the same residuals
+        from identify.model.scopes import parse
+
+        base = {parse(n)[0] for n in self.parameters}
+        other = [n for n in free if parse(n)[0] in base]
+        if other and self.law is None:
+            return f"{scope_summary(other)} already free in the baseline, in another scope"
+        return None
+
+    def run_values(self, runs, magnitude: float | None = None, seed: int = 0) -> list:
+        """Per run of ``runs`` (sequence of (name, device)), the values that switch a per-run
+        or per-device effect on (withheld-effect data sets); [] for a global effect."""
+        return []
+
+    def confounded_reason(self) -> str | None:
+        """Why a bound per-device candidate has nothing to free (one device only), or None."""
+        if self.scope == "device" and self.reference and self.n_labels == 1:
+            return (f"one device only ({self.reference_label}): a factor for it is the global one, which the "
+                    "friction coefficients absorb (μ·N/k sets every elongation); runs of a second device "
+                    "would tell them apart")
         return None
 
     def nudges(self) -> list:
@@ -98,10 +172,10 @@ class Effect:
         μmin to shorten its slips, and from there A can only grow by moving μmin back)."""
         out = []
         for n in self.parameters:
-            lo, hi = self.bounds.get(n, (SPECS[n].lower, SPECS[n].upper))
+            lo, hi = self.bounds.get(n, (spec(n).lower, spec(n).upper))
             null = self.null.get(n)
             if null is not None and null in (lo, hi):
-                step = SPECS[n].scale if null == lo else -SPECS[n].scale
+                step = spec(n).scale if null == lo else -spec(n).scale
                 out.append({n: float(min(max(null + step, lo), hi)), "_staged": True})
         return out
 
@@ -134,11 +208,14 @@ def effect_ids() -> tuple:
     return tuple(EFFECTS)
 
 
-def get_effect(name: str) -> Effect:
+def get_effect(name: str, runs=None) -> Effect:
+    """The candidate ``name``; bound to ``runs`` where it has one parameter per run or
+    device (:meth:`Effect.bind`)."""
     try:
-        return EFFECTS[name]
+        eff = EFFECTS[name]
     except KeyError:
         raise ValueError(f"unknown effect {name!r}; choose from {', '.join(EFFECTS)}") from None
+    return eff.bind(runs)
 
 
 # ----------------------------------------------------------------------------- library
@@ -312,6 +389,96 @@ class Drift(Effect):
     magnitude = ("drift_rate", 5e-8, "m/s")
 
 
+class DriftPerRun(Effect):
+    """Drift at its own rate in each run (a camera or chip creeping thermally):
+    e_meas = e + r_i·t in run i; null r_i = 0 for every run."""
+
+    id = "drift_per_run"
+    parameters = ("drift_rate",)
+    null = {"drift_rate": 0.0}
+    bounds = {"drift_rate": (-1e-5, 1e-5)}
+    touches = ("time", "stick_slope", "post_slip_level")
+    magnitude = ("drift_rate", 5e-8, "m/s")
+    scope = "run"
+
+    def run_values(self, runs, magnitude=None, seed=0):
+        """Rates of the magnitude's size, 0.5-1.5× it, signs alternating from run to run."""
+        m = float(self.magnitude[1] if magnitude is None else magnitude)
+        rng = _rng(seed, 1)
+        return [{"drift_rate": m * (-1) ** i * rng.uniform(0.5, 1.5)} for i in range(len(runs))]
+
+
+class SpringConstantPerDevice(Effect):
+    """One device's spring constant off its calibration: true k = s_d·k_nominal on device
+    d; null s_d = 1, one device (the one with the most runs) the reference.
+
+    Only ratios between devices are determined (a common factor is absorbed by the
+    friction coefficients): with a single device there is nothing to free."""
+
+    id = "spring_constant_per_device"
+    parameters = ("k_scale",)
+    null = {"k_scale": 1.0}
+    bounds = {"k_scale": (0.5, 2.0)}
+    touches = ("static_friction", "slip_length")
+    magnitude = ("k_scale", 1.15, "-")
+    scope = "device"
+    reference = True
+
+    def run_values(self, runs, magnitude=None, seed=0):
+        """The factor on every run of one device other than the reference (the first of
+        those with the fewest runs); the reference's and the others' springs right."""
+        m = float(self.magnitude[1] if magnitude is None else magnitude)
+        off = _off_device(runs)
+        return [{"k_scale": m if dev == off else 1.0} for _, dev in runs]
+
+
+class LoadOffsetPerDevice(Effect):
+    """An adhesion-like extra normal force of each device's own: N = Nb + F_a,d on device
+    d; null F_a,d = 0 for every device."""
+
+    id = "load_offset_per_device"
+    parameters = ("load_offset",)
+    null = {"load_offset": 0.0}
+    bounds = {"load_offset": (-5e-6, 5e-5)}
+    touches = ("static_friction", "slip_length", "conditions")
+    magnitude = ("load_offset", 2e-6, "N")
+    scope = "device"
+
+    def run_values(self, runs, magnitude=None, seed=0):
+        """The offset on one device's runs (as :class:`SpringConstantPerDevice`), none on the
+        others."""
+        m = float(self.magnitude[1] if magnitude is None else magnitude)
+        off = _off_device(runs)
+        return [{"load_offset": m if dev == off else 0.0} for _, dev in runs]
+
+
+def scope_summary(names) -> str:
+    """Parameter names grouped by base and scope, short: ``drift_rate (per run, 8 values)``."""
+    from identify.model.scopes import parse
+
+    groups: dict = {}
+    for n in names:
+        base, scope, _ = parse(n)
+        groups.setdefault((base, scope), []).append(n)
+    return ", ".join(base if scope is None else f"{base} (per {scope}, {len(v)} value{'s' * (len(v) > 1)})"
+                     for (base, scope), v in groups.items())
+
+
+def _off_device(runs) -> str:
+    """The device a withheld per-device effect is put on: the first of those with the
+    fewest runs (never the reference a per-device candidate keeps at its null, the one
+    with the most)."""
+    devs = [dev for _, dev in runs]
+    counts = {d: devs.count(d) for d in dict.fromkeys(devs)}
+    return min(counts, key=lambda d: counts[d])
+
+
+def _rng(seed: int, stream: int):
+    import numpy as np
+
+    return np.random.default_rng([int(seed), 7_000 + stream])
+
+
 class MotionBlur(Effect):
     """Motion blur: each frame averages e over an exposure T centred on it; null T = 0.
 
@@ -341,7 +508,7 @@ class StickThreshold(Effect):
 
 def display(name: str, value: float) -> str:
     """A parameter value in its display unit."""
-    s = SPECS[name]
+    s = spec(name)
     v = s.to_display(value)
     unit = "" if s.shown_unit == "-" else s.shown_unit
     return f"{v:.4g} {unit}".strip() if math.isfinite(v) else "nan"

@@ -218,6 +218,14 @@ def spec(name: str) -> ParamSpec:
         return SPECS[name]
     if name in CONDITION_SPECS:
         return CONDITION_SPECS[name]
+    if "@" in name:  # a per-run or per-device value (identify.model.scopes)
+        from identify.model.scopes import parse, scoped_spec
+
+        try:
+            base = parse(name)[0]
+        except ValueError as err:
+            raise ParameterError(str(err)) from None
+        return scoped_spec(name, SPECS[base])
     raise ParameterError(
         f"unknown parameter {name!r}; known: {', '.join(sorted(SPECS))}"
     )

@@ -220,6 +220,7 @@ class SimulationResult(SavedResult):
         exposure_s: float | None = None,
         drift_rate_m_per_s: float | None = None,
         offset_m: float | None = None,
+        drift_walk_m_per_sqrt_s: float = 0.0,
         name: str = "run",
         metadata: Mapping[str, Any] | None = None,
         times_s: np.ndarray | None = None,
@@ -231,7 +232,9 @@ class SimulationResult(SavedResult):
         clock: steps at n/fp; times at or past the run's end are dropped), e.g. a
         recorded trace's own frames. Measurement effects default to
         the run's parameters (``exposure``, ``drift_rate``, ``e_offset``). Gaussian noise
-        of ``noise_nm`` (standard deviation, nm) is drawn from ``seed``.
+        of ``noise_nm`` (standard deviation, nm) is drawn from ``seed``; a random walk of
+        the camera's zero, ``drift_walk_m_per_sqrt_s`` (its standard deviation grows as
+        √t), from a stream of its own of the same seed (the noise stays as without it).
         """
         from identify.traces.io import Trace
 
@@ -264,6 +267,12 @@ class SimulationResult(SavedResult):
         else:
             e = self.elongation(t)
         e = e + offset + drift * t
+        if drift_walk_m_per_sqrt_s:
+            if drift_walk_m_per_sqrt_s < 0 or not math.isfinite(drift_walk_m_per_sqrt_s):
+                raise ParameterError(f"drift_walk_m_per_sqrt_s = {drift_walk_m_per_sqrt_s!r}: must be >= 0")
+            dt = np.diff(t, prepend=0.0)
+            walk = np.random.default_rng([0 if seed is None else int(seed), 1]).normal(0.0, 1.0, size=t.shape)
+            e = e + np.cumsum(walk * np.sqrt(dt)) * drift_walk_m_per_sqrt_s
         if noise_nm > 0:
             rng = np.random.default_rng(seed)
             e = e + rng.normal(0.0, noise_nm * 1e-9, size=e.shape)

@@ -7,6 +7,8 @@ noise and two frames per step, with the simulator's stick option (v_stick = 1e-5
 which the baseline then fixes). ``effect=None`` gives the baseline model itself;
 ``effect="outside"`` an effect outside the library: every run's true normal load off its
 nominal value by its own random error (±15 %), which no single global parameter mimics.
+``"random_walk"``, alone or beside library effects, is another: each run's camera zero
+wanders as a random walk (:data:`RANDOM_WALK_NM`; a thermal wander no candidate models).
 """
 
 from __future__ import annotations
@@ -17,10 +19,14 @@ import numpy as np
 
 from identify.model.effects import get_effect
 from identify.model.params import parameter_set
+from identify.model.scopes import device_label
 
-__all__ = ["CONDITIONS", "QUICK_CONDITIONS", "withheld_dataset"]
+__all__ = ["CONDITIONS", "QUICK_CONDITIONS", "withheld_dataset", "run_name"]
 
 STICK = 1e-5
+RANDOM_WALK_NM = 20.0
+"""The random walk's default size, nm/√s: over the longest withheld run (~22 s) it wanders
+by ~90 nm, the frames' noise."""
 
 # (k N/m, Nb µN, fp Hz, travel µm): eight of the bundled conditions, except that the
 # (2.13 N/m, 20 µN, 300 Hz) run is pulled at 100 Hz here. At 300 Hz the puller (13.8
@@ -45,7 +51,8 @@ QUICK_CONDITIONS = tuple((k, nb, fp, min(tr, 15.0)) for k, nb, fp, tr in CONDITI
 
 def withheld_dataset(effect: str | Sequence[str] | None, magnitude: float | Sequence | None = None, *,
                      coating: str = "FOTAS", seed: int = 0, noise_nm: float = 90.0,
-                     conditions: Sequence = CONDITIONS, base: dict | None = None) -> list:
+                     conditions: Sequence = CONDITIONS, base: dict | None = None,
+                     drift_walk_nm_per_sqrt_s: float = 0.0) -> list:
     """Traces of ``conditions`` simulated with ``effect`` on (seeded noise per run).
 
     Parameters
@@ -58,6 +65,14 @@ def withheld_dataset(effect: str | Sequence[str] | None, magnitude: float | Sequ
         effects, one value (or None) per effect.
     base : dict, optional
         Parameter overrides of the truth (e.g. ``{"A": 0.015}``).
+    drift_walk_nm_per_sqrt_s : float
+        A random walk of each run's camera zero besides (nm/√s; a thermal wander no
+        candidate models).
+
+    A per-run or per-device effect (``drift_per_run``, ``spring_constant_per_device``,
+    ``load_offset_per_device``) takes its values run by run from
+    :meth:`identify.model.effects.Effect.run_values`; the runs are named as the fit
+    names them and their device is their spring constant (``k2.13``).
     """
     from identify.simulation.hybrid import simulate
 
@@ -67,28 +82,47 @@ def withheld_dataset(effect: str | Sequence[str] | None, magnitude: float | Sequ
     law = "exponential"
     load_err = np.ones(len(conditions))
     ids, mags = _effects_and_magnitudes(effect, magnitude)
+    if "random_walk" in ids:
+        mag = mags.pop(ids.index("random_walk"))
+        ids.remove("random_walk")
+        drift_walk_nm_per_sqrt_s += RANDOM_WALK_NM if mag is None else float(mag)
     if ids == ["outside"]:
         rng = np.random.default_rng(10_000 + seed)
         load_err = 1 + rng.uniform(-0.15, 0.15, len(conditions))
+    names = [run_name(c) for c in conditions]
+    per_run = [{} for _ in conditions]
     for eid, mag in zip(ids, mags):
         if eid == "outside":
             continue
         eff = get_effect(eid)
         if eff.law is not None:
             law = eff.law
-        truth.update(eff.simulation_values(mag, truth))
+        if eff.scope is not None:
+            devices = [device_label(None, c[0]) for c in conditions]
+            for own, vals in zip(per_run, eff.run_values(list(zip(names, devices)), mag, seed)):
+                own.update(vals)
+        else:
+            truth.update(eff.simulation_values(mag, truth))
     traces = []
-    camera = {n: truth.pop(n) for n in ("exposure", "drift_rate", "e_offset") if n in truth}
     for i, (k, nb, fp, travel) in enumerate(conditions):
+        params = {**truth, **per_run[i]}
+        camera = {n: params.pop(n) for n in ("exposure", "drift_rate", "e_offset") if n in params}
         run = simulate(coating, spring_constant_N_per_m=k, normal_load_uN=nb * load_err[i], step_frequency_Hz=fp,
-                       travel_um=travel, law=law, params=truth, stick_speed_m_per_s=truth.get("v_stick"))
-        tr = run.sample(noise_nm=noise_nm, seed=1000 * seed + i, name=f"k{k:g}_Nb{nb:g}uN_fp{fp:g}Hz",
+                       travel_um=travel, law=law, params=params, stick_speed_m_per_s=params.get("v_stick"))
+        tr = run.sample(noise_nm=noise_nm, seed=1000 * seed + i, name=names[i],
                         exposure_s=camera.get("exposure", 0.0), drift_rate_m_per_s=camera.get("drift_rate", 0.0),
-                        offset_m=camera.get("e_offset", 0.0))
+                        offset_m=camera.get("e_offset", 0.0),
+                        drift_walk_m_per_sqrt_s=drift_walk_nm_per_sqrt_s * 1e-9)
         if ids == ["outside"]:
             tr = _with_nominal_load(tr, nb * 1e-6)
         traces.append(tr)
     return traces
+
+
+def run_name(condition) -> str:
+    """A withheld set's run name for ``(k N/m, Nb µN, fp Hz, travel µm)``."""
+    k, nb, fp = condition[:3]
+    return f"k{k:g}_Nb{nb:g}uN_fp{fp:g}Hz"
 
 
 def _effects_and_magnitudes(effect, magnitude) -> tuple[list, list]:
@@ -107,7 +141,7 @@ def _effects_and_magnitudes(effect, magnitude) -> tuple[list, list]:
         raise ValueError(f"effect: {ids} names an effect twice")
     if "outside" in ids and len(ids) > 1:
         raise ValueError("effect: 'outside' is a data set of its own and cannot be combined with library effects")
-    laws = [e for e in ids if e != "outside" and get_effect(e).law is not None]
+    laws = [e for e in ids if e not in ("outside", "random_walk") and get_effect(e).law is not None]
     if len(laws) > 1:
         raise ValueError(f"effect: {laws} are aging laws; the data can follow only one")
     return ids, mags

@@ -47,8 +47,14 @@ def _baseline_options(eid):
     return identify.FitOptions(fixed=fixed, free=free)
 
 
+PSEUDO = ("outside", "random_walk")  # withheld_dataset's effects outside the library
+# rows of two effects at once that the per-run and per-device candidates need: drift of
+# each run's own, with the camera's zero wandering besides; a load offset beside it
+COMBINED = ("drift_per_run+random_walk", "load_offset+drift_per_run")
+
+
 def _magnitude(eid, scale):
-    if eid in (None, "outside"):
+    if eid is None or eid in PSEUDO:
         return None
     eff = get_effect(eid)
     return eff.scaled_magnitude(scale) if eff.nested and eff.magnitude else None
@@ -116,11 +122,11 @@ def _stamped(msg):
 
 
 def confusion(args):
-    ids = args.effects.split(",") if args.effects else ["none", "outside"] + list(EFFECTS)
+    ids = args.effects.split(",") if args.effects else ["none", "outside"] + list(EFFECTS) + list(COMBINED)
     scales = [float(s) for s in args.scales.split(",")]
     out = Path(args.out)
     for eid in ids:
-        nested = eid not in ("none", "outside") and all(get_effect(e).nested for e in eid.split("+"))
+        nested = eid != "none" and all(e not in PSEUDO and get_effect(e).nested for e in eid.split("+"))
         for sc in (scales if nested else [1.0]):
             try:
                 row = case(None if eid == "none" else eid, sc, args.quick, args.workers,

@@ -41,7 +41,7 @@ def _predicted_triggers(prob, w, Y0, P) -> np.ndarray:
         if n.size == 0:
             continue
         xp = x[prob.ev_prev[e] + 1]
-        Pe = dict(P, k=run.k, Nb=run.Nb)
+        Pe = prob.run_params(P, int(prob.ev_run[e]))
         z = law.rest(np.full(n.size, Y0[1, e]), (n - start) / run.fp, Pe)
         cap = model.hold_coefficient(z, xp, Pe) * model.normal_load(Pe)
         force = model.spring_force(step * n - xp, Pe)

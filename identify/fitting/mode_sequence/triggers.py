@@ -130,7 +130,7 @@ class TriggerRefinement:
         n_new = self.ev_step[ev] + sh
         prev = self.ev_prev[ev]
         e0 = step * n_new - x[prev]
-        Pe = dict(P, k=self.ev_k[ev], Nb=self.ev_Nb[ev])
+        Pe = self.event_params(P, ev)
         first = self.ev_first[ev]
         pv = np.maximum(ev - 1, 0)
         rest = (n_new - self.ev_step[pv] - self.ev_M[pv]) / self.ev_fp[pv]
@@ -177,7 +177,7 @@ class TriggerRefinement:
         over the changed rest, and from the arc now."""
         nx = c.nx
         e0n = c.step * self.ev_step[nx] - c.x[self.ev_prev[nx]]
-        Pn = dict(c.P, k=self.ev_k[nx], Nb=self.ev_Nb[nx])
+        Pn = self.event_params(c.P, nx)
         rest_n_new = (self.ev_step[nx] - c.n_new - self.ev_M[c.ev]) / self.ev_fp[c.ev]
         rest_n_old = (self.ev_step[nx] - self.ev_step[c.ev] - self.ev_M[c.ev]) / self.ev_fp[c.ev]
         sn_new = self._aged_position(c.P, Yc[1], rest_n_new, self.ev_fp[nx], c.x[self.ev_prev[nx]], e0n, Pn)

@@ -1,0 +1,103 @@
+"""Parameters that take one value per run or per device (``drift_rate@run:NAME``,
+``k_scale@device:LABEL``).
+
+A lab's gap rarely acts the same on every run: a camera drifts at its own rate in each
+run, and spring constants are calibrated per spring, so one device may be off while the
+others are right. A *scoped* parameter is a model or measurement parameter of
+:data:`SCOPABLE` with a scope: for the runs inside the scope it replaces the global value,
+everywhere the global value enters (the simulator, the NLP, the reports). Scoped names
+are written ``base@run:NAME`` (the run's trace name) or ``base@device:LABEL``; a run's
+device is its trace's ``device`` field, else its nominal spring constant (``k2.13`` for
+2.13 N/m: springs are what the toolkit's devices differ by). A run-scoped value wins over
+a device-scoped one, which wins over the global value.
+
+The names go wherever a parameter name goes (``FitOptions.free``, ``fixed``, ``bounds``,
+the result's parameters and JSON), with the base parameter's unit, bounds and scale.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable, Mapping
+
+__all__ = ["SCOPABLE", "SCOPES", "scoped", "parse", "is_scoped", "device_label", "resolve",
+           "scoped_names", "run_scope_value"]
+
+SCOPABLE = ("drift_rate", "k_scale", "load_offset", "load_scale")
+"""Parameters that may carry a scope: what differs between a lab's runs (drift) or devices
+(spring calibration, adhesion, load calibration)."""
+SCOPES = ("run", "device")
+
+
+def scoped(base: str, scope: str, label: str) -> str:
+    """The name of ``base`` for one run or device: ``scoped("drift_rate", "run", "r1")``
+    is ``"drift_rate@run:r1"``."""
+    if base not in SCOPABLE:
+        raise ValueError(f"{base!r} cannot take a per-{scope} value; these can: {', '.join(SCOPABLE)}")
+    if scope not in SCOPES:
+        raise ValueError(f"scope {scope!r}: choose 'run' or 'device'")
+    label = str(label)
+    if not label or "," in label or "@" in label:
+        raise ValueError(f"{scope} label {label!r}: must be non-empty, without ',' or '@'")
+    return f"{base}@{scope}:{label}"
+
+
+def is_scoped(name: str) -> bool:
+    return "@" in name
+
+
+def parse(name: str) -> tuple[str, str | None, str | None]:
+    """(base, scope, label) of a name; (name, None, None) for a global one. A malformed
+    scoped name raises ``ValueError`` naming the rule it broke."""
+    if "@" not in name:
+        return name, None, None
+    base, _, rest = name.partition("@")
+    scope, sep, label = rest.partition(":")
+    if base not in SCOPABLE:
+        raise ValueError(f"{name!r}: {base!r} cannot take a per-run or per-device value; "
+                         f"these can: {', '.join(SCOPABLE)}")
+    if scope not in SCOPES or not sep or not label:
+        raise ValueError(f"{name!r}: write a scoped parameter as {base}@run:NAME or {base}@device:LABEL")
+    return base, scope, label
+
+
+def device_label(device: str | None, spring_constant: float) -> str:
+    """A run's device: its trace's ``device`` field, else its nominal spring constant
+    (``k2.13``)."""
+    if device:
+        return str(device).replace(",", "_").replace("@", "_")
+    return f"k{spring_constant:g}"
+
+
+def scoped_names(names: Iterable[str], base: str | None = None) -> list[str]:
+    """The scoped ones of ``names`` (of ``base`` only, if given)."""
+    return [n for n in names if is_scoped(n) and (base is None or parse(n)[0] == base)]
+
+
+def run_scope_value(values: Mapping, base: str, run: str, device: str):
+    """The value ``base`` takes in one run: run-scoped, else device-scoped, else global
+    (works for numbers and CasADi symbols alike)."""
+    for key in (f"{base}@run:{run}", f"{base}@device:{device}"):
+        if key in values:
+            return values[key]
+    return values[base]
+
+
+def resolve(values: Mapping, run: str, device: str) -> dict:
+    """``values`` as one run sees them: each base parameter set to its value in the run,
+    the scoped names dropped (for the simulator, which knows no scopes)."""
+    out = {k: v for k, v in values.items() if not is_scoped(k)}
+    for base in {parse(k)[0] for k in values if is_scoped(k)}:
+        if base in out:
+            out[base] = run_scope_value(values, base, run, device)
+        else:
+            from identify.model.params import SPECS
+
+            out[base] = run_scope_value({**values, base: SPECS[base].nominal}, base, run, device)
+    return out
+
+
+def scoped_spec(name: str, base_spec):
+    """The spec of a scoped name: its base's, renamed, the scope in its description."""
+    base, scope, label = parse(name)
+    return dataclasses.replace(base_spec, name=name, description=f"{base_spec.description} ({scope} {label})")
