@@ -232,7 +232,9 @@ def _add_fit_arguments(p, json_required: bool):
                    help="aging law: exponential (default), logarithmic, logistic; for continuously driven "
                         "runs (imported lab data) the rate-and-state law: aging (default) or slip")
     p.add_argument("--free", default=None, metavar="NAMES",
-                   help="comma-separated free parameters (default mu_max,mu_min,tau,A)")
+                   help="comma-separated free parameters (default mu_max,mu_min,tau,A); drift_rate, k_scale, "
+                   "load_offset and load_scale may take one value per run or device: drift_rate@run (every run), "
+                   "drift_rate@run:NAME (one run), k_scale@device:LABEL (a trace's device, else k<spring constant>)")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
                    help="fix a parameter at a value, SI (repeatable; e.g. --fix v_stick=1e-5)")
     p.add_argument("--bound", action="append", metavar="NAME=LO:HI", help="bounds of a free parameter")

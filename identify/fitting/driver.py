@@ -257,10 +257,11 @@ def _fit(data, *, coating, options, true_values, progress):
     if not said and opts.stick_speed != "off":
         opts, final_opts, stick_note = _decide_stick(runs_ev, model, {**preset, **opts.start}, opts, final_opts, say)
         preset = parameter_set(coating, {n: v for n, v in opts.fixed.items()})
-    preset = _scoped_defaults(preset, opts)
     left = _LeftOut(excluded, say)
     run_data, stepping = _runs_to_fit(runs_ev, preset, opts, left, say)
+    opts, final_opts = (_every_scope(o, run_data) for o in (opts, final_opts))
     _check_scopes(opts, run_data, left)
+    preset = _scoped_defaults(preset, opts)
     start, start_source = start_values(run_data, law, preset, opts)
     from identify.fitting.problem import MEASUREMENT
 
@@ -346,6 +347,29 @@ def _scoped_defaults(preset: dict, opts: FitOptions) -> dict:
         if is_scoped(name) and name not in out:
             out[name] = out[parse(name)[0]]
     return out
+
+
+def _every_scope(opts: FitOptions, run_data) -> FitOptions:
+    """The options with ``base@run`` and ``base@device`` (no label) in ``free`` and
+    ``bounds`` written out: one parameter per run fitted by its frames (a creeping run's
+    steady level shows no drift), or per device of the runs."""
+    wide = [n for n in opts.free if is_scoped(n) and parse(n)[2] is None]
+    if not wide:
+        return opts
+    runs = [r.name for r in run_data if r.kind == "events"]
+    devices = list(dict.fromkeys(r.device or device_label(None, r.k) for r in run_data))
+    out, bounds = [], dict(opts.bounds)
+    for n in opts.free:
+        base, scope, label = parse(n) if is_scoped(n) else (n, None, None)
+        if scope is None or label is not None:
+            out.append(n)
+            continue
+        names = [f"{base}@{scope}:{lab}" for lab in (runs if scope == "run" else devices)]
+        out += [m for m in names if m not in out]
+        if n in bounds:
+            b = bounds.pop(n)
+            bounds.update({m: b for m in names})
+    return opts.evolve(free=tuple(out), bounds=bounds)
 
 
 def _check_scopes(opts: FitOptions, run_data, left) -> None:

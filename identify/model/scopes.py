@@ -47,8 +47,9 @@ def is_scoped(name: str) -> bool:
 
 
 def parse(name: str) -> tuple[str, str | None, str | None]:
-    """(base, scope, label) of a name; (name, None, None) for a global one. A malformed
-    scoped name raises ``ValueError`` naming the rule it broke."""
+    """(base, scope, label) of a name; (name, None, None) for a global one; label None
+    for ``base@run`` or ``base@device``, which a fit writes out for every run or device.
+    A malformed scoped name raises ``ValueError`` naming the rule it broke."""
     if "@" not in name:
         return name, None, None
     base, _, rest = name.partition("@")
@@ -56,9 +57,10 @@ def parse(name: str) -> tuple[str, str | None, str | None]:
     if base not in SCOPABLE:
         raise ValueError(f"{name!r}: {base!r} cannot take a per-run or per-device value; "
                          f"these can: {', '.join(SCOPABLE)}")
-    if scope not in SCOPES or not sep or not label:
-        raise ValueError(f"{name!r}: write a scoped parameter as {base}@run:NAME or {base}@device:LABEL")
-    return base, scope, label
+    if scope not in SCOPES or (sep and not label):
+        raise ValueError(f"{name!r}: write a scoped parameter as {base}@run:NAME or {base}@device:LABEL "
+                         f"({base}@run or {base}@device: one for every run or device)")
+    return base, scope, label or None
 
 
 def device_label(device: str | None, spring_constant: float) -> str:
@@ -100,4 +102,5 @@ def resolve(values: Mapping, run: str, device: str) -> dict:
 def scoped_spec(name: str, base_spec):
     """The spec of a scoped name: its base's, renamed, the scope in its description."""
     base, scope, label = parse(name)
-    return dataclasses.replace(base_spec, name=name, description=f"{base_spec.description} ({scope} {label})")
+    where = f"{scope} {label}" if label else f"each {scope}"
+    return dataclasses.replace(base_spec, name=name, description=f"{base_spec.description} ({where})")

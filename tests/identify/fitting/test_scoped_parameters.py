@@ -112,6 +112,18 @@ def test_a_fit_recovers_a_drift_of_each_runs_own_sign():
             assert abs(fit[n].value - v) < 3 * fit[n].stderr, (n, fit[n].value, fit[n].stderr, v)
 
 
+def test_a_scope_without_a_label_is_one_parameter_per_run_or_device():
+    traces = _traces(drifts=(4e-8, -2.5e-8), noise_nm=90.0, travel_um=8.0)
+    res = identify.fit(traces, options=FitOptions(free=("mu_max", "drift_rate@run", "load_offset@device"),
+                                                  bounds={"drift_rate@run": (-1e-6, 1e-6)},
+                                                  fixed={"v_stick": V_STICK}))
+    assert res.free == ["mu_max", "drift_rate@run:k2.13", "drift_rate@run:k20.3",
+                        "load_offset@device:k2.13", "load_offset@device:k20.3"]
+    assert res.problem.opts.bounds["drift_rate@run:k20.3"] == (-1e-6, 1e-6)
+    assert "drift_rate@run:k20.3" in res.report()
+    assert res.to_json()["parameters"]["drift_rate@run:k2.13"]["unit"] == "m/s"
+
+
 def test_a_scoped_name_for_no_run_of_the_data_is_a_clear_error(runs):
     traces = _traces(travel_um=6.0)
     with pytest.raises(FitError, match=r"free: drift_rate@run:nope names no run of the fitted data; "

@@ -18,10 +18,13 @@ def test_names_round_trip_and_bad_names_say_the_rule():
     assert name == "drift_rate@run:r1"
     assert parse(name) == ("drift_rate", "run", "r1")
     assert parse("mu_max") == ("mu_max", None, None)
+    assert parse("drift_rate@run") == ("drift_rate", "run", None)  # one for every run
     with pytest.raises(ValueError, match="cannot take a per-run"):
         parse("mu_max@run:r1")
     with pytest.raises(ValueError, match="write a scoped parameter as"):
         parse("drift_rate@lab:r1")
+    with pytest.raises(ValueError, match="write a scoped parameter as"):
+        parse("drift_rate@run:")
     with pytest.raises(ValueError, match="without ','"):
         scoped("k_scale", "device", "a,b")
 
