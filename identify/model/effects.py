@@ -389,16 +389,11 @@ class Drift(Effect):
     magnitude = ("drift_rate", 5e-8, "m/s")
 
 
-class DriftPerRun(Effect):
+class DriftPerRun(Drift):
     """Drift at its own rate in each run (a camera or chip creeping thermally):
     e_meas = e + r_i·t in run i; null r_i = 0 for every run."""
 
     id = "drift_per_run"
-    parameters = ("drift_rate",)
-    null = {"drift_rate": 0.0}
-    bounds = {"drift_rate": (-1e-5, 1e-5)}
-    touches = ("time", "stick_slope", "post_slip_level")
-    magnitude = ("drift_rate", 5e-8, "m/s")
     scope = "run"
 
     def run_values(self, runs, magnitude=None, seed=0):
@@ -408,7 +403,7 @@ class DriftPerRun(Effect):
         return [{"drift_rate": m * (-1) ** i * rng.uniform(0.5, 1.5)} for i in range(len(runs))]
 
 
-class SpringConstantPerDevice(Effect):
+class SpringConstantPerDevice(SpringConstant):
     """One device's spring constant off its calibration: true k = s_d·k_nominal on device
     d; null s_d = 1, one device (the one with the most runs) the reference.
 
@@ -416,40 +411,34 @@ class SpringConstantPerDevice(Effect):
     friction coefficients): with a single device there is nothing to free."""
 
     id = "spring_constant_per_device"
-    parameters = ("k_scale",)
-    null = {"k_scale": 1.0}
-    bounds = {"k_scale": (0.5, 2.0)}
-    touches = ("static_friction", "slip_length")
-    magnitude = ("k_scale", 1.15, "-")
     scope = "device"
     reference = True
 
     def run_values(self, runs, magnitude=None, seed=0):
-        """The factor on every run of one device other than the reference (the first of
-        those with the fewest runs); the reference's and the others' springs right."""
-        m = float(self.magnitude[1] if magnitude is None else magnitude)
-        off = _off_device(runs)
-        return [{"k_scale": m if dev == off else 1.0} for _, dev in runs]
+        return _on_one_device(self, runs, magnitude)
 
 
-class LoadOffsetPerDevice(Effect):
+class LoadOffsetPerDevice(LoadOffset):
     """An adhesion-like extra normal force of each device's own: N = Nb + F_a,d on device
     d; null F_a,d = 0 for every device."""
 
     id = "load_offset_per_device"
-    parameters = ("load_offset",)
-    null = {"load_offset": 0.0}
-    bounds = {"load_offset": (-5e-6, 5e-5)}
-    touches = ("static_friction", "slip_length", "conditions")
-    magnitude = ("load_offset", 2e-6, "N")
     scope = "device"
 
     def run_values(self, runs, magnitude=None, seed=0):
-        """The offset on one device's runs (as :class:`SpringConstantPerDevice`), none on the
-        others."""
-        m = float(self.magnitude[1] if magnitude is None else magnitude)
-        off = _off_device(runs)
-        return [{"load_offset": m if dev == off else 0.0} for _, dev in runs]
+        return _on_one_device(self, runs, magnitude)
+
+
+def _on_one_device(eff: Effect, runs, magnitude) -> list:
+    """A per-device effect's withheld values: its magnitude on every run of one device
+    (the first of those with the fewest runs: never the reference a per-device candidate
+    keeps at its null, the one with the most), the null on the others."""
+    name, value, _ = eff.magnitude
+    m = float(value if magnitude is None else magnitude)
+    devs = [dev for _, dev in runs]
+    counts = {d: devs.count(d) for d in dict.fromkeys(devs)}
+    off = min(counts, key=lambda d: counts[d])
+    return [{name: m if dev == off else float(eff.null[name])} for dev in devs]
 
 
 def scope_summary(names) -> str:
@@ -462,15 +451,6 @@ def scope_summary(names) -> str:
         groups.setdefault((base, scope), []).append(n)
     return ", ".join(base if scope is None else f"{base} (per {scope}, {len(v)} value{'s' * (len(v) > 1)})"
                      for (base, scope), v in groups.items())
-
-
-def _off_device(runs) -> str:
-    """The device a withheld per-device effect is put on: the first of those with the
-    fewest runs (never the reference a per-device candidate keeps at its null, the one
-    with the most)."""
-    devs = [dev for _, dev in runs]
-    counts = {d: devs.count(d) for d in dict.fromkeys(devs)}
-    return min(counts, key=lambda d: counts[d])
 
 
 def _rng(seed: int, stream: int):
