@@ -390,8 +390,9 @@ class Drift(Effect):
 
 
 class DriftPerRun(Drift):
-    """Drift at its own rate in each run (a camera or chip creeping thermally):
-    e_meas = e + r_i·t in run i; null r_i = 0 for every run."""
+    """Drift at each run's own rate: e_meas = e + r_i·t in run i; null r_i = 0 for every run.
+
+    A camera or a chip creeping thermally, at a rate and sign of its own in each run."""
 
     id = "drift_per_run"
     scope = "run"
@@ -404,11 +405,11 @@ class DriftPerRun(Drift):
 
 
 class SpringConstantPerDevice(SpringConstant):
-    """One device's spring constant off its calibration: true k = s_d·k_nominal on device
-    d; null s_d = 1, one device (the one with the most runs) the reference.
+    """Spring constants off per device: true k = s_d·k_nominal on device d; null s_d = 1.
 
-    Only ratios between devices are determined (a common factor is absorbed by the
-    friction coefficients): with a single device there is nothing to free."""
+    One device, the one with the most runs, is the reference kept at 1. Only ratios
+    between devices are determined (a common factor is absorbed by the friction
+    coefficients): with a single device there is nothing to free."""
 
     id = "spring_constant_per_device"
     scope = "device"
@@ -419,8 +420,9 @@ class SpringConstantPerDevice(SpringConstant):
 
 
 class LoadOffsetPerDevice(LoadOffset):
-    """An adhesion-like extra normal force of each device's own: N = Nb + F_a,d on device
-    d; null F_a,d = 0 for every device."""
+    """Load offset per device: N = Nb + F_a,d on device d; null F_a,d = 0 for every device.
+
+    An adhesion-like extra normal force of each device's own."""
 
     id = "load_offset_per_device"
     scope = "device"
