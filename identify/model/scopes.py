@@ -90,12 +90,10 @@ def resolve(values: Mapping, run: str, device: str) -> dict:
     the scoped names dropped (for the simulator, which knows no scopes)."""
     out = {k: v for k, v in values.items() if not is_scoped(k)}
     for base in {parse(k)[0] for k in values if is_scoped(k)}:
-        if base in out:
+        try:
             out[base] = run_scope_value(values, base, run, device)
-        else:
-            from identify.model.params import SPECS
-
-            out[base] = run_scope_value({**values, base: SPECS[base].nominal}, base, run, device)
+        except KeyError:  # no value of its own here and none global: the caller's default
+            pass
     return out
 
 

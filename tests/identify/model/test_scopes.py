@@ -46,8 +46,8 @@ def test_a_run_value_wins_over_a_device_value_over_the_global_one():
     assert run_scope_value(values, "drift_rate", "r2", "e") == 1.0
     seen = resolve(values, "r2", "d")
     assert seen == {"drift_rate": 2.0, "mu_max": 0.7}
-    # a scoped value without its global one in the values: the base's nominal elsewhere
-    assert resolve({"k_scale@device:d": 1.2}, "r", "e") == {"k_scale": 1.0}
+    # a scoped value without its global one in the values: elsewhere the caller's default
+    assert resolve({"k_scale@device:d": 1.2}, "r", "e") == {}
     assert resolve({"k_scale@device:d": 1.2}, "r", "d") == {"k_scale": 1.2}
 
 
