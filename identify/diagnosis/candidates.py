@@ -232,7 +232,22 @@ def _refit_record(task: CandidateTask, prob, free: tuple, best: dict, ev, t0: fl
         values=values, estimates=est, confounding=info, r=r, w=w, ev_M=np.array(prob.ev_M),
         gap=fitted, heldout=heldout, wall_s=time.perf_counter() - t0, error=None, nulls=dict(task.nulls),
         regime=regime_of_left_out(task, values) if task.regime_runs else None,
+        time_by_run=_time_by_run(prob, w, r) if task.effect is None else None,
     )
+
+
+def _time_by_run(prob, w, r) -> dict | None:
+    """The runs' own trends of their plateau levels in time, as one χ² (None without a run
+    of four plateaus)."""
+    from scipy import stats
+
+    from identify.diagnosis.where import run_trends
+
+    t, _ = run_trends(prob, feature_values(prob, w, r)["post_slip_level"])
+    if not t.size:
+        return None
+    q = float(t @ t)
+    return dict(chi2=q, df=int(t.size), p=float(stats.chi2.sf(q, t.size)))
 
 
 def _heldout_gap(task: CandidateTask, prob, w, r: np.ndarray, ev, chi2: float) -> dict:

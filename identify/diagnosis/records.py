@@ -29,7 +29,7 @@ CANDIDATE_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "
                   "closes", "gap_sigma_before", "gap_sigma_after", "heldout_gap_sigma_before",
                   "heldout_gap_sigma_after", "heldout_by_fold", "heldout_set_aside", "at_floor",
                   "heldout_gap_ratio_before", "beside", "mimicked", "own_sequence", "wald_z", "undetermined",
-                  "at_magnitude", "regime", "regime_fixed", "regime_broken", "held_regime")
+                  "at_magnitude", "regime", "regime_fixed", "regime_broken", "held_regime", "time_by_run")
 """A candidate's fields in the diagnosis's JSON, in their order there."""
 
 
@@ -66,6 +66,9 @@ class CandidateResult:
     gap: dict | None = None  # fitted gap (identify.diagnosis.features.gap)
     heldout: dict | None = None  # held-out gap, and by fold
     regime: dict | None = None  # the runs left out for their regime, read under the refit
+    # the current model's: each run's own trend of its plateau levels in time (chi2, df, p;
+    # identify.diagnosis.where.run_trends), the signature a drift per run must show
+    time_by_run: dict | None = None
     at_magnitude: dict | None = None  # the check at the realistic magnitude (magnitude_check)
     w_at_magnitude: Any = None
     ev_M_at_magnitude: Any = None

@@ -184,6 +184,7 @@ def where(prob, w: np.ndarray, r: np.ndarray | None = None) -> list:
     out += _static_friction_misfits(prob, w, feats["static_friction"])
     out += _stick_slope_misfits(feats["stick_slope"], runs)
     out += _time_misfits(prob, feats["post_slip_level"])
+    out += _time_by_run_misfits(prob, feats["post_slip_level"])
     out += _creep_misfits(feats["creep_level"], runs)
     out.sort(key=lambda m: -(m.misfit_sigma if np.isfinite(m.misfit_sigma) else -1))
     return out
@@ -334,6 +335,43 @@ def _time_misfits(prob, pl) -> list:
     if not np.isfinite(t):
         return []
     return [Misfit("time", misfit_sigma(p), p, t, f"plateau-level trend {b:+.3g} σ/s within runs (t = {t:+.1f})")]
+
+
+def run_trends(prob, pl) -> tuple[np.ndarray, np.ndarray]:
+    """Per run with four plateaus or more: the trend of its plateau residuals (σ units)
+    against time, as a t statistic, with the run's index. The scatter about the trend
+    sets its standard error where it exceeds the noise (a misfit of another kind, as a
+    wrong load, then does not pass for a trend)."""
+    z = pl.value_um / pl.sigma_um
+    ts, idx = [], []
+    for ri in np.unique(pl.run):
+        m = pl.run == ri
+        if m.sum() < 4:
+            continue
+        x = prob.pl_mean_t[m] - prob.pl_mean_t[m].mean()
+        y = z[m] - z[m].mean()
+        sxx = float(x @ x)
+        if sxx <= 0:
+            continue
+        b = float(x @ y) / sxx
+        s2 = max(float(((y - b * x) ** 2).sum()) / max(m.sum() - 2, 1), 1.0)
+        ts.append(b / math.sqrt(s2 / sxx))
+        idx.append(int(ri))
+    return np.array(ts), np.array(idx, int)
+
+
+def _time_by_run_misfits(prob, pl) -> list:
+    """``time_by_run``: χ² of each run's own trend of its plateau residuals against time (a
+    drift at a rate and sign of each run's own, which the pooled ``time`` trend averages
+    away)."""
+    if not pl.value_um.size:
+        return []
+    t, idx = run_trends(prob, pl)
+    if t.size < 1:
+        return []
+    worst = int(np.argmax(np.abs(t)))
+    return [_chi2(t, t.size, "time_by_run",
+                  f"the runs' own trends in time; largest t = {t[worst]:+.1f} in {prob.runs[idx[worst]].name}")]
 
 
 def _creep_misfits(cr, runs) -> list:

@@ -1,10 +1,17 @@
 """Per-run and per-device candidates in the diagnosis: honest about what one spring cannot
 tell, and naming a drift of each run's own on data that have one."""
 
+from types import SimpleNamespace
+
+import numpy as np
 import pytest
 
 import identify
+from identify.diagnosis.features import FeatureValues
+from identify.diagnosis.records import CandidateResult
 from identify.diagnosis.rounds import DiagnosisOptions, diagnose
+from identify.diagnosis.selection import SIGNATURE_P, _unsigned
+from identify.diagnosis.where import _time_by_run_misfits, _time_misfits, run_trends
 from identify.model.effects import get_effect
 from identify.model.scopes import device_label
 from identify.simulation.withheld import QUICK_CONDITIONS, run_name, withheld_dataset
@@ -48,3 +55,35 @@ def test_a_drift_of_each_runs_own_rate_and_sign_is_named_with_its_rates():
         lo, hi = c["estimates"][f"drift_rate@run:{name}"]["ci95"]
         held += lo <= t["drift_rate"] <= hi
     assert held >= 7
+
+
+def test_each_runs_own_trend_in_time_is_seen_where_the_pooled_one_cancels():
+    """Two runs trending in time at equal and opposite rates: the pooled trend sees nothing,
+    the runs' own trends see both; white plateau residuals give χ² near its df."""
+    rng = np.random.default_rng(0)
+    n = 40
+    t = np.tile(np.linspace(0.0, 10.0, n), 2)
+    run = np.repeat([0, 1], n)
+    prob = SimpleNamespace(pl_mean_t=t, runs=[SimpleNamespace(name="a"), SimpleNamespace(name="b")])
+    trend = np.where(run == 0, 1.0, -1.0) * (t - 5.0) * 0.4  # ±2 σ over the run
+    z = rng.normal(size=2 * n)
+    pl = FeatureValues("post_slip_level", trend + z, np.ones(2 * n), run)
+    assert _time_misfits(prob, pl)[0].p_value > 0.05  # the pooled trend cancels
+    by_run = _time_by_run_misfits(prob, pl)[0]
+    assert by_run.p_value < 1e-6 and by_run.feature == "time_by_run"
+    ts, idx = run_trends(prob, pl)
+    assert list(idx) == [0, 1] and ts[0] > 5 and ts[1] < -5
+    white = run_trends(prob, FeatureValues("post_slip_level", z, np.ones(2 * n), run))[0]
+    assert float(white @ white) < 9.2  # χ²(2) below its 99 % point
+
+
+def test_a_drift_per_run_without_its_signature_is_not_named():
+    c = CandidateResult(effect="drift_per_run", ok=True, significant=True)
+    flat = CandidateResult(effect=None, time_by_run=dict(chi2=7.0, df=8, p=0.54))
+    trending = CandidateResult(effect=None, time_by_run=dict(chi2=400.0, df=8, p=1e-80))
+    assert "do not trend in time within runs" in _unsigned(c, flat)
+    assert _unsigned(c, trending) is None
+    assert _unsigned(c, CandidateResult(effect=None)) is not None  # no run long enough to tell
+    # a global candidate is not held to it
+    assert _unsigned(CandidateResult(effect="drift", ok=True), flat) is None
+    assert 0 < SIGNATURE_P < 0.05
