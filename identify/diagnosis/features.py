@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from identify.model.scopes import parse
+from identify.model.scopes import label, parse
 
 __all__ = ["Layout", "FeatureValues", "feature_values", "gap"]
 
@@ -38,13 +38,17 @@ class Layout:
     con_run: np.ndarray
     var_run: np.ndarray
     groups: dict
-    theta_run: np.ndarray | None = None
+    theta_runs: tuple = ()  # per parameter: the runs it acts on (() for the shared ones)
 
-    def own_vars(self) -> np.ndarray:
-        """The run of every decision variable, per-run parameters counted as their run's."""
-        own = self.var_run.copy()
-        if self.theta_run is not None:
-            own[: self.theta_run.size] = self.theta_run
+    def fold_vars(self, fold) -> np.ndarray:
+        """Whether each decision variable is the fold's own: a run's variables, and a
+        per-run or per-device parameter whose every run is in the fold (out of it, it acts
+        on nothing)."""
+        own = np.isin(self.var_run, list(fold))
+        fold = set(int(i) for i in fold)
+        for i, runs in enumerate(self.theta_runs):
+            if runs and set(runs) <= fold:
+                own[i] = True
         return own
 
     @classmethod
@@ -62,10 +66,18 @@ class Layout:
         var[prob.i_s : prob.i_s + prob.n_s] = prob.ev_run[: prob.n_s]
         # constraints: slip-length continuity per slip, then the start positions'
         con = np.r_[prob.ev_run, prob.ev_run[prob.ev_next] if prob.n_s else np.zeros(0, int)]
-        names = [r.name for r in prob.runs]
-        theta_run = np.array([names.index(parse(n)[2]) if parse(n)[1] == "run" and parse(n)[2] in names else -1
-                              for n in prob.theta.names], int)
-        return cls(row_run=rows.astype(int), con_run=con.astype(int), var_run=var, groups=grp, theta_run=theta_run)
+        return cls(row_run=rows.astype(int), con_run=con.astype(int), var_run=var, groups=grp,
+                   theta_runs=tuple(_acts_on(prob, n) for n in prob.theta.names))
+
+
+def _acts_on(prob, name: str) -> tuple:
+    """The runs a per-run or per-device parameter acts on (() for a shared one)."""
+    _, scope, lab = parse(name)
+    if scope is None:
+        return ()
+    if scope == "run":
+        return tuple(i for i, r in enumerate(prob.runs) if label(r.name) == lab)
+    return tuple(i for i in range(len(prob.runs)) if prob.run_device(i) == lab)
 
 
 @dataclass

@@ -107,7 +107,7 @@ def heldout_residuals(prob, w: np.ndarray, folds: Sequence, evaluated=None, refi
         fold = list(fold)
         in_rows = np.isin(lay.row_run, fold)
         in_cons = np.isin(lay.con_run, fold)
-        in_vars = np.isin(lay.own_vars(), fold)
+        in_vars = lay.fold_vars(fold)
         # 1) the fit without the fold
         W = sp.diags((~in_rows).astype(float))
         Jk = W @ Jr
@@ -193,9 +193,9 @@ def exact_fold(prob, w: np.ndarray, fold: Sequence[int]):
     kept = [i for i in range(len(prob.runs)) if i not in fold]
     n_th = prob.n_theta
     th = w[:n_th].copy()
-    # a per-run parameter moves only in the sub-problem of its run (elsewhere it acts on nothing)
-    theta_run = Layout.of(prob).theta_run
-    own = np.isin(theta_run, fold)
+    # a per-run or per-device parameter whose runs are all in the fold moves only in the
+    # fold's sub-problem (elsewhere it acts on nothing)
+    own = Layout.of(prob).fold_vars(fold)[:n_th]
     if kept:
         sub, w_sub = _subproblem(prob, w, kept)
         sol = sub.solve(w_sub, fixed={i: float(w_sub[i]) for i in np.nonzero(own)[0]} or None)

@@ -22,6 +22,7 @@ from identify.diagnosis.scores import (
 )
 from identify.diagnosis.tasks import candidate_starts
 from identify.model.effects import get_effect
+from identify.model.scopes import parse
 
 
 def select_named(scored: list, base, retry=None) -> tuple:
@@ -153,6 +154,8 @@ def refit_beside(chosen, scored, base, current, runs, fopts, opts, threads, exec
     beside = list(chosen.beside or [])
     for rival in _rivals(chosen, scored):
         reff = get_effect(rival.effect, runs)
+        if {parse(n)[0] for n in eff.parameters} & {parse(n)[0] for n in rival.free or ()}:
+            continue  # the same parameter in another scope (drift beside drift per run): one of them acts on nothing
         nulls = eff.null_values(rival.values)
         free = tuple(rival.free)
         # one basin: its own estimates, the null or its nudges, and the leading ripple's

@@ -34,7 +34,7 @@ from identify.fitting.suspect import (
 )
 from identify.model.laws import get_law
 from identify.model.params import parameter_set
-from identify.model.scopes import device_label, is_scoped, parse, resolve
+from identify.model.scopes import device_label, is_scoped, label, parse, resolve
 from identify.model.symbolic import Model
 from identify.progress import Stage, reporter
 
@@ -268,6 +268,7 @@ def _fit(data, *, coating, options, true_values, progress):
     values = {**model.defaults(preset), **{n: preset[n] for n in MEASUREMENT},
               **{n: v for n, v in preset.items() if is_scoped(n)}, **start}
     run_data = _creep_runs_checked(run_data, model, values, stepping, left)
+    _check_scopes(opts, run_data, left)  # (a run the creep check left out)
     prob = _problem(run_data, model, values, opts, left, say)
     n_obs = prob.n_observations()
     failed0 = prob.arcs.n_failed
@@ -349,22 +350,31 @@ def _scoped_defaults(preset: dict, opts: FitOptions) -> dict:
     return out
 
 
+RATIO_ONLY = ("k_scale", "load_scale")
+
+
 def _every_scope(opts: FitOptions, run_data) -> FitOptions:
     """The options with ``base@run`` and ``base@device`` (no label) in ``free`` and
     ``bounds`` written out: one parameter per run fitted by its frames (a creeping run's
-    steady level shows no drift), or per device of the runs."""
+    steady level shows no drift), or per device of the runs; for a factor (``k_scale``,
+    ``load_scale``: a common one is absorbed by the friction coefficients) every device but
+    the one with the most runs, as the diagnosis's candidates do."""
     wide = [n for n in opts.free if is_scoped(n) and parse(n)[2] is None]
     if not wide:
         return opts
-    runs = [r.name for r in run_data if r.kind == "events"]
+    runs = [label(r.name) for r in run_data if r.kind == "events"]
     devices = list(dict.fromkeys(r.device or device_label(None, r.k) for r in run_data))
     out, bounds = [], dict(opts.bounds)
     for n in opts.free:
-        base, scope, label = parse(n) if is_scoped(n) else (n, None, None)
-        if scope is None or label is not None:
+        base, scope, lab = parse(n) if is_scoped(n) else (n, None, None)
+        if scope is None or lab is not None:
             out.append(n)
             continue
-        names = [f"{base}@{scope}:{lab}" for lab in (runs if scope == "run" else devices)]
+        labels = runs if scope == "run" else devices
+        if base in RATIO_ONLY and len(labels) > 1:
+            dev = [r.device or device_label(None, r.k) for r in run_data]
+            labels = [d for d in labels if d != max(sorted(labels), key=dev.count)]
+        names = [f"{base}@{scope}:{lab}" for lab in labels]
         out += [m for m in names if m not in out]
         if n in bounds:
             b = bounds.pop(n)
@@ -374,19 +384,22 @@ def _every_scope(opts: FitOptions, run_data) -> FitOptions:
 
 def _check_scopes(opts: FitOptions, run_data, left) -> None:
     """A per-run or per-device parameter must name a run or device that is fitted."""
-    runs = {r.name for r in run_data}
+    runs = {label(r.name): r for r in run_data}
     devices = {r.device or device_label(None, r.k) for r in run_data}
-    gone = dict(left.excluded)
+    gone = {label(n): why for n, why in left.excluded}
     for name in (*opts.free, *opts.fixed):
         if not is_scoped(name):
             continue
-        _, scope, label = parse(name)
+        base, scope, lab = parse(name)
         known = runs if scope == "run" else devices
-        if label not in known:
-            why = f" (left out: {gone[label]})" if label in gone else ""
-            where = "free" if name in opts.free else "fixed"
+        where = "free" if name in opts.free else "fixed"
+        if lab not in known:
+            why = f" (left out: {gone[lab]})" if lab in gone else ""
             raise FitError(f"{where}: {name} names no {scope} of the fitted data{why}; the {scope}s are "
                            f"{', '.join(sorted(known)) or 'none'}", left.excluded)
+        if scope == "run" and base == "drift_rate" and runs[lab].kind != "events":
+            raise FitError(f"{where}: {name} names a run fitted by its steady level, which a drift does not "
+                           "move (no resolvable slips)", left.excluded)
 
 
 def _runs_to_fit(runs_ev, preset, opts, left: _LeftOut, say) -> tuple[list, dict]:

@@ -15,6 +15,8 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
+from identify.model.scopes import device_label, resolve
+
 __all__ = ["STICK_SPEED_AUTO", "StickChoice", "stick_choice"]
 
 log = logging.getLogger(__name__)
@@ -59,7 +61,8 @@ def stick_choice(runs_ev, model, values: dict, options=(0.0, STICK_SPEED_AUTO), 
         for _ev, rd in runs:
             steps = min(int(rd.trigger_steps[-1]) + 50 if len(rd.trigger_steps) else CHECK_STEPS, CHECK_STEPS)
             try:
-                sim = simulate_run(model, dict(values, v_stick=v), RunConditions(rd.k, rd.Nb, rd.fp, steps),
+                run_values = resolve(dict(values, v_stick=v), rd.name, rd.device or device_label(None, rd.k))
+                sim = simulate_run(model, run_values, RunConditions(rd.k, rd.Nb, rd.fp, steps),
                                    SimulationOptions(record=False))
             except Exception as err:  # noqa: BLE001 - a run the simulator cannot do says nothing here
                 log.debug("stick check: %s at v_stick = %g not simulated: %s", rd.name, v, err)

@@ -67,7 +67,7 @@ class Effect:
     reference: ClassVar[bool] = False
     labels: tuple = ()  # bound: the runs or devices with a parameter of their own
     reference_label: str | None = None  # bound: the device kept at the null
-    n_labels: int = 0  # bound: how many runs or devices the data have in this scope
+    n_labels: int | None = None  # bound: how many runs or devices the data have in this scope
 
     def __init_subclass__(cls, **kw):
         super().__init_subclass__(**kw)
@@ -102,10 +102,10 @@ class Effect:
         returned as they are."""
         if self.scope is None or runs is None:
             return self
-        from identify.model.scopes import device_label, scoped
+        from identify.model.scopes import device_label, label, scoped
 
         if self.scope == "run":
-            order = [r.name for r in runs if getattr(r, "kind", "events") == "events"]
+            order = [label(r.name) for r in runs if getattr(r, "kind", "events") == "events"]
         else:
             order = [getattr(r, "device", "") or device_label(None, r.k) for r in runs]
         counts = {lab: order.count(lab) for lab in dict.fromkeys(order)}
@@ -134,8 +134,15 @@ class Effect:
     def applicable(self, free: tuple, law: str) -> str | None:
         """Why this candidate cannot extend a baseline with these free parameters and law
         (``None``: it can)."""
-        if self.scope is not None and self.n_labels and not self.labels:
+        if self.scope is not None and not self.labels and self.confounded_reason():
             return self.confounded_reason()
+        if self.scope is not None and len(self.labels) <= 1 and self.n_labels is not None:
+            # one value for the only run or device there is: the global candidate again
+            what = "run fitted by its frames" if self.scope == "run" else "device"
+            if not self.labels:
+                return f"no {what} to give a value of its own"
+            if not self.reference:
+                return f"one {what} only: the same as the global candidate {type(self).__mro__[1].id}"
         if self.law is not None and self.law == law:
             return f"the baseline already uses the {law} law"
         taken = [n for n in self.parameters if n in free]
@@ -396,6 +403,7 @@ class DriftPerRun(Drift):
 
     id = "drift_per_run"
     scope = "run"
+    touches = ("time_by_run", "stick_slope", "post_slip_level")
 
     def run_values(self, runs, magnitude=None, seed=0):
         """Rates of the magnitude's size, 0.5-1.5× it, signs alternating from run to run."""
@@ -439,7 +447,8 @@ def _on_one_device(eff: Effect, runs, magnitude) -> list:
     m = float(value if magnitude is None else magnitude)
     devs = [dev for _, dev in runs]
     counts = {d: devs.count(d) for d in dict.fromkeys(devs)}
-    off = min(counts, key=lambda d: counts[d])
+    ref = max(sorted(counts), key=lambda d: counts[d])  # as Effect.bind chooses it
+    off = min((d for d in counts if d != ref), key=lambda d: counts[d], default=ref)
     return [{name: m if dev == off else float(eff.null[name])} for dev in devs]
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable, Mapping
 
-__all__ = ["SCOPABLE", "SCOPES", "scoped", "parse", "is_scoped", "device_label", "resolve",
+__all__ = ["SCOPABLE", "SCOPES", "scoped", "parse", "is_scoped", "label", "device_label", "resolve",
            "scoped_names", "run_scope_value"]
 
 SCOPABLE = ("drift_rate", "k_scale", "load_offset", "load_scale")
@@ -63,11 +63,17 @@ def parse(name: str) -> tuple[str, str | None, str | None]:
     return base, scope, label or None
 
 
+def label(name: str) -> str:
+    """A run's or device's name as a scope label: ',' and '@' (which a list of names and a
+    scoped name use) read as '_'."""
+    return str(name).replace(",", "_").replace("@", "_")
+
+
 def device_label(device: str | None, spring_constant: float) -> str:
     """A run's device: its trace's ``device`` field, else its nominal spring constant
     (``k2.13``)."""
     if device:
-        return str(device).replace(",", "_").replace("@", "_")
+        return label(device)
     return f"k{spring_constant:g}"
 
 
@@ -79,7 +85,7 @@ def scoped_names(names: Iterable[str], base: str | None = None) -> list[str]:
 def run_scope_value(values: Mapping, base: str, run: str, device: str):
     """The value ``base`` takes in one run: run-scoped, else device-scoped, else global
     (works for numbers and CasADi symbols alike)."""
-    for key in (f"{base}@run:{run}", f"{base}@device:{device}"):
+    for key in (f"{base}@run:{label(run)}", f"{base}@device:{device}"):
         if key in values:
             return values[key]
     return values[base]

@@ -299,7 +299,7 @@ def save_fit_plots(result, folder) -> list:
         save(plot_slip_lengths(result), "slip_force_drop_vs_load")
         save(plot_residuals(result), "residuals")
     for name, pr in result.profiles.items():
-        save(plot_profile(pr, estimate=result.parameters.get(name)), f"profile_{name}")
+        save(plot_profile(pr, estimate=result.parameters.get(name)), f"profile_{_safe(name)}")
     return written
 
 

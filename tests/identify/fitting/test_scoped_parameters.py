@@ -121,6 +121,9 @@ def test_a_scope_without_a_label_is_one_parameter_per_run_or_device():
                         "load_offset@device:k2.13", "load_offset@device:k20.3"]
     assert res.problem.opts.bounds["drift_rate@run:k20.3"] == (-1e-6, 1e-6)
     assert "drift_rate@run:k20.3" in res.report()
+    # a spring factor for every device but the one with the most runs (ties: the first by name)
+    many = identify.fit(traces, options=FitOptions(free=("mu_max", "k_scale@device"), fixed={"v_stick": V_STICK}))
+    assert many.free == ["mu_max", "k_scale@device:k20.3"]
     assert res.to_json()["parameters"]["drift_rate@run:k2.13"]["unit"] == "m/s"
 
 

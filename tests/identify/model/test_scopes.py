@@ -85,16 +85,27 @@ def test_per_device_spring_constant_on_one_spring_is_confounded_never_fitted():
     assert eff.parameters == ()
     why = eff.applicable(("mu_max", "mu_min", "tau", "A"), "exponential")
     assert why is not None and "one device only (k2.13)" in why and "absorb" in why
-    # a load offset per device has no reference: one device still has its own offset
+    # a load offset per device has no reference, but one device's own offset is the
+    # global one: the same refit twice, which would tie and name neither
     lo = get_effect("load_offset_per_device", [_run("a", 2.13), _run("b", 2.13)])
     assert lo.parameters == ("load_offset@device:k2.13",)
-    assert lo.applicable(("mu_max",), "exponential") is None
+    assert "the same as the global candidate load_offset" in lo.applicable(("mu_max",), "exponential")
+    one = get_effect("drift_per_run", [_run("a", 2.13), _run("b", 2.13, kind="creep")])
+    assert "one run fitted by its frames only" in one.applicable(("mu_max",), "exponential")
+    none = get_effect("drift_per_run", [_run("b", 2.13, kind="creep")])
+    assert "no run fitted by its frames" in none.applicable(("mu_max",), "exponential")
+    # names a list or a scoped name would misread are read with '_'
+    odd = get_effect("drift_per_run", [_run("run@25C", 2.13), _run("a,b", 2.13)])
+    assert odd.parameters == ("drift_rate@run:run_25C", "drift_rate@run:a_b")
+    assert run_scope_value({"drift_rate": 0.0, "drift_rate@run:run_25C": 1.0}, "drift_rate", "run@25C", "d") == 1.0
 
 
 def test_withheld_values_put_the_effect_where_the_candidate_can_see_it():
     runs = [("a", "k2.13"), ("b", "k2.13"), ("c", "k20.3")]
     k = get_effect("spring_constant_per_device").run_values(runs, 1.15)
     assert [v["k_scale"] for v in k] == [1.0, 1.0, 1.15]  # never on the reference
+    tie = get_effect("spring_constant_per_device").run_values([("a", "kB"), ("b", "kA")], 1.15)
+    assert [v["k_scale"] for v in tie] == [1.15, 1.0]  # kA, first by name, is the reference
     d = get_effect("drift_per_run").run_values(runs, 5e-8, seed=3)
     rates = [v["drift_rate"] for v in d]
     assert rates[0] > 0 > rates[1] and rates[2] > 0  # signs mixed
