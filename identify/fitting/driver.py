@@ -34,7 +34,7 @@ from identify.fitting.suspect import (
 )
 from identify.model.laws import get_law
 from identify.model.params import parameter_set
-from identify.model.scopes import device_label, is_scoped, label, parse, resolve
+from identify.model.scopes import device_of, is_scoped, label, parse, resolve
 from identify.model.symbolic import Model
 from identify.progress import Stage, reporter
 
@@ -363,7 +363,7 @@ def _every_scope(opts: FitOptions, run_data) -> FitOptions:
     if not wide:
         return opts
     runs = [label(r.name) for r in run_data if r.kind == "events"]
-    devices = list(dict.fromkeys(r.device or device_label(None, r.k) for r in run_data))
+    devices = list(dict.fromkeys(device_of(r) for r in run_data))
     out, bounds = [], dict(opts.bounds)
     for n in opts.free:
         base, scope, lab = parse(n) if is_scoped(n) else (n, None, None)
@@ -372,7 +372,7 @@ def _every_scope(opts: FitOptions, run_data) -> FitOptions:
             continue
         labels = runs if scope == "run" else devices
         if base in RATIO_ONLY and len(labels) > 1:
-            dev = [r.device or device_label(None, r.k) for r in run_data]
+            dev = [device_of(r) for r in run_data]
             labels = [d for d in labels if d != max(sorted(labels), key=dev.count)]
         names = [f"{base}@{scope}:{lab}" for lab in labels]
         out += [m for m in names if m not in out]
@@ -385,7 +385,7 @@ def _every_scope(opts: FitOptions, run_data) -> FitOptions:
 def _check_scopes(opts: FitOptions, run_data, left) -> None:
     """A per-run or per-device parameter must name a run or device that is fitted."""
     runs = {label(r.name): r for r in run_data}
-    devices = {r.device or device_label(None, r.k) for r in run_data}
+    devices = {device_of(r) for r in run_data}
     gone = {label(n): why for n, why in left.excluded}
     for name in (*opts.free, *opts.fixed):
         if not is_scoped(name):
@@ -440,7 +440,7 @@ def _creep_runs_checked(run_data, model, values, stepping, left: _LeftOut) -> li
             kept.append(r)
             continue
         try:
-            sim = simulate_run(model, resolve(values, r.name, r.device or device_label(None, r.k)),
+            sim = simulate_run(model, resolve(values, r.name, device_of(r)),
                                RunConditions(r.k, r.Nb, r.fp, steps_of(r)),
                                SimulationOptions(record=False))
             if sim.regime == "creep":

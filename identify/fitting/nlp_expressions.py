@@ -36,8 +36,7 @@ class NLPExpressions:
         """
         out = ca.DM.zeros(self.P, 1)
         if "drift_rate" in self.scoped_bases:  # a rate per run
-            rates = ca.vertcat(*[ca.MX(v) if not isinstance(v, ca.MX) else v for v in self.per_run(P, "drift_rate")])
-            out = out + ca.reshape(rates[self.pl_run.tolist()], -1, 1) * ca.DM(self.pl_mean_t)
+            out = out + self.per_run_column(P, "drift_rate", self.pl_run) * ca.DM(self.pl_mean_t)
         elif "drift_rate" in self.theta.names or self.values.get("drift_rate", 0.0) != 0.0:
             out = out + P["drift_rate"] * ca.DM(self.pl_mean_t)
         if "exposure" in self.theta.names or self.values.get("exposure", 0.0) != 0.0:
@@ -80,10 +79,10 @@ class NLPExpressions:
             z0 = self.start_state(self.start_positions(w), x_prev, e0, Pev, ops=ca)
             rows = [(x_prev / LENGTH_UNIT).T, (e0 / LENGTH_UNIT).T, z0.T]
             for n in self.arcs.param_names:
-                v = Pev[n] if n in self.scoped_bases else P[n]
                 if n in self.scoped_bases:
-                    rows.append(ca.reshape(v, 1, -1))
+                    rows.append(ca.reshape(Pev[n], 1, -1))
                 else:
+                    v = P[n]
                     rows.append(ca.repmat(v if isinstance(v, ca.MX) else ca.MX(v), 1, E))
             rows += [ca.DM(self.ev_k).T, ca.DM(self.ev_Nb).T, ca.DM(self.ev_fp).T, ca.DM(self.ev_M).T]
             A = ca.vertcat(*rows)

@@ -68,7 +68,7 @@ from identify.fitting.mode_sequence.triggers import TriggerRefinement, below_top
 from identify.fitting.nlp_expressions import NLPExpressions
 from identify.fitting.theta_map import ThetaMap as ThetaMap
 from identify.model.params import SPECS
-from identify.model.scopes import device_label, is_scoped, parse, run_scope_value
+from identify.model.scopes import device_of, is_scoped, parse, run_scope_value
 from identify.model.symbolic import LENGTH_UNIT, Model
 
 __all__ = ["Problem", "ThetaMap", "MEASUREMENT"]
@@ -200,12 +200,16 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
         return tuple(sorted({parse(n)[0] for n in names if is_scoped(n)}))
 
     def run_device(self, ri: int) -> str:
-        r = self.runs[ri]
-        return r.device or device_label(None, r.k)
+        return device_of(self.runs[ri])
 
     def per_run(self, P: Mapping, base: str):
         """``base``'s value in each run (a list, numbers or MX), its scoped values applied."""
         return [run_scope_value(P, base, self.runs[i].name, self.run_device(i)) for i in range(len(self.runs))]
+
+    def per_run_column(self, P: Mapping, base: str, rows: np.ndarray):
+        """``base``'s value for each of ``rows`` (run indices) as a CasADi column."""
+        col = ca.vertcat(*[v if isinstance(v, ca.MX) else ca.MX(v) for v in self.per_run(P, base)])
+        return ca.reshape(col[np.asarray(rows, int).tolist()], -1, 1)
 
     def run_params(self, P: Mapping, ri: int) -> dict:
         """P as run ``ri`` sees it: its conditions (k, Nb) and its scoped values."""
@@ -224,12 +228,10 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
         else:
             out = dict(P, k=self.ev_k[ev], Nb=self.ev_Nb[ev])
         for base in self.scoped_bases:
-            vals = self.per_run(P, base)
             if ops is ca:
-                col = ca.vertcat(*[ca.MX(v) if not isinstance(v, ca.MX) else v for v in vals])
-                out[base] = ca.reshape(col[runs.tolist()], -1, 1)
+                out[base] = self.per_run_column(P, base, runs)
             else:
-                out[base] = np.array([float(v) for v in vals])[runs]
+                out[base] = np.array([float(v) for v in self.per_run(P, base)])[runs]
         return out
 
     def interval(self, x_prev_m, e0, P, ops=np):

@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from identify.model.scopes import device_label, resolve
+from identify.model.scopes import device_of, resolve
 
 __all__ = ["RegimeRun", "RegimeCheck", "regime_check", "steps_of", "slips_text", "slip_floor", "MISMATCH_Z",
            "MERGE_STEPS", "SLIP_P"]
@@ -210,7 +210,7 @@ def regime_check(model, values: dict, runs) -> RegimeCheck | None:
         return None
     out, chi2, df = [], 0.0, 0
     for rr in runs:
-        run_values = resolve(values, rr.name, rr.device or device_label(None, rr.k))
+        run_values = resolve(values, rr.name, device_of(rr))
         rec = dict(name=rr.name, data_regime=rr.data_regime, data_slip_um=rr.largest_slip_m * 1e6,
                    data_steady_slip_um=None if rr.steady_slip_m is None else rr.steady_slip_m * 1e6,
                    model_regime=None, model_slip_um=None,

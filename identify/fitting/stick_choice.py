@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
-from identify.model.scopes import device_label, resolve
+from identify.model.scopes import device_of, resolve
 
 __all__ = ["STICK_SPEED_AUTO", "StickChoice", "stick_choice"]
 
@@ -61,7 +61,7 @@ def stick_choice(runs_ev, model, values: dict, options=(0.0, STICK_SPEED_AUTO), 
         for _ev, rd in runs:
             steps = min(int(rd.trigger_steps[-1]) + 50 if len(rd.trigger_steps) else CHECK_STEPS, CHECK_STEPS)
             try:
-                run_values = resolve(dict(values, v_stick=v), rd.name, rd.device or device_label(None, rd.k))
+                run_values = resolve(dict(values, v_stick=v), rd.name, device_of(rd))
                 sim = simulate_run(model, run_values, RunConditions(rd.k, rd.Nb, rd.fp, steps),
                                    SimulationOptions(record=False))
             except Exception as err:  # noqa: BLE001 - a run the simulator cannot do says nothing here

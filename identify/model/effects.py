@@ -102,12 +102,12 @@ class Effect:
         returned as they are."""
         if self.scope is None or runs is None:
             return self
-        from identify.model.scopes import device_label, label, scoped
+        from identify.model.scopes import device_of, label, scoped
 
         if self.scope == "run":
             order = [label(r.name) for r in runs if getattr(r, "kind", "events") == "events"]
         else:
-            order = [getattr(r, "device", "") or device_label(None, r.k) for r in runs]
+            order = [device_of(r) for r in runs]
         counts = {lab: order.count(lab) for lab in dict.fromkeys(order)}
         labels = list(counts)
         ref = None

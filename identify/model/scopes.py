@@ -18,10 +18,10 @@ the result's parameters and JSON), with the base parameter's unit, bounds and sc
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 
 __all__ = ["SCOPABLE", "SCOPES", "scoped", "parse", "is_scoped", "label", "device_label", "resolve",
-           "scoped_names", "run_scope_value"]
+           "device_of", "run_scope_value"]
 
 SCOPABLE = ("drift_rate", "k_scale", "load_offset", "load_scale")
 """Parameters that may carry a scope: what differs between a lab's runs (drift) or devices
@@ -77,9 +77,10 @@ def device_label(device: str | None, spring_constant: float) -> str:
     return f"k{spring_constant:g}"
 
 
-def scoped_names(names: Iterable[str], base: str | None = None) -> list[str]:
-    """The scoped ones of ``names`` (of ``base`` only, if given)."""
-    return [n for n in names if is_scoped(n) and (base is None or parse(n)[0] == base)]
+def device_of(run) -> str:
+    """The device of a run (anything with ``k`` and perhaps ``device``, as a fit's run
+    data): its ``device`` if it has one, else its spring constant's label."""
+    return getattr(run, "device", "") or device_label(None, run.k)
 
 
 def run_scope_value(values: Mapping, base: str, run: str, device: str):
