@@ -17,6 +17,7 @@ solved: :mod:`identify.diagnosis.refit_solve`; the screen a name asks and the ea
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -49,6 +50,7 @@ from identify.diagnosis.refit_solve import ROUND_GAIN as ROUND_GAIN
 from identify.diagnosis.refit_solve import candidate_problem, solve_on
 from identify.fitting.convergence import GAVE_UP as GAVE_UP
 from identify.fitting.convergence import STALLED as STALLED
+from identify.model.effects import get_effect
 
 __all__ = ["CandidateResult", "CandidateTask", "run_candidate", "candidate_problem", "regime_of_left_out"]
 
@@ -69,6 +71,7 @@ class CandidateTask:
     extra: tuple = ()  # the candidate's parameters, freed in addition
     replace_free: tuple = ()  # parameters no longer free (a law candidate drops the old law's)
     bounds: dict = field(default_factory=dict)
+    priors: dict = field(default_factory=dict)  # zero-mean Gaussian priors' sd (FitOptions.priors)
     starts: list = field(default_factory=list)  # start values of the extra parameters (best kept)
     w_tail: Any = None  # the current solution after the parameters (positions, phases)
     ev_M: Any = None
@@ -94,15 +97,58 @@ def run_candidate(task: CandidateTask) -> CandidateResult:
         prob = candidate_problem(task, free)
         prob.give_up = give_up_rule(task, prob)
         best = _refit(task, prob, _scored_starts(prob, _starts(task, prob, free)))
+        if task.effect is not None and get_effect(task.effect).priors():
+            prob, best = _roughness_rounds(task, prob, free, best)
         ev = prob.central_differences().evaluate(best["w"], jac=True)
         out = _refit_record(task, prob, free, best, ev, t0)
         if (task.magnitude and np.isfinite(out.chi2)
-                and not could_be_named(task, out.chi2, prob.n_effective(), prob.n_observations())):
+                and not could_be_named(task, out.chi2, out.n_eff, prob.n_observations())):
             out = out.but(**_magnitude_check(task, prob, out, ev, t0))
         return out
     except Exception as err:  # one failed candidate never sinks the diagnosis
         return CandidateResult(effect=task.effect, ok=False, status=f"failed: {type(err).__name__}: {err}",
                                error=str(err), wall_s=time.perf_counter() - t0)
+
+
+ROUGHNESS_ROUNDS = 3
+"""Refits a rough track's prior scale is updated over at most (MacKay's evidence update,
+:func:`identify.model.effects.roughness_update`), each from the last one's end; it stops
+once the scale moves by less than :data:`ROUGHNESS_RTOL`."""
+ROUGHNESS_RTOL = 0.25
+
+
+def _roughness_rounds(task: CandidateTask, prob, free: tuple, best: dict):
+    """The refit with its priors' scale chosen by the data: the scale updated from the
+    coefficients and their effective degrees of freedom, and the refit solved again from
+    its end, until the scale settles. Returns the problem and end of the last refit."""
+    from dataclasses import replace as _replace
+
+    from identify.model.effects import roughness_update
+
+    eff = get_effect(task.effect)
+    own = [n for n in prob.prior_sd() if n in eff.parameters]
+    rho = eff.roughness
+    for _ in range(ROUGHNESS_ROUNDS):
+        w = best["w"]
+        ev = prob.central_differences().evaluate(w, jac=True)
+        n_pen = len(prob.prior_sd())
+        edf = prob.penalised_counts(ev[0], w, ev)[1] - (prob.n_effective() - n_pen)
+        values = dict(zip(prob.theta.names, prob.theta.from_scaled(w[: prob.n_theta])))
+        new = roughness_update({n: values[n] for n in own}, edf * len(own) / max(n_pen, 1))
+        if abs(math.log(new / rho)) < math.log(1 + ROUGHNESS_RTOL):
+            break
+        rho = new
+        nxt = candidate_problem(_replace(task, priors={**task.priors, **eff.priors(rho)}), free)
+        nxt.give_up = give_up_rule(task, nxt)
+        if nxt.E:
+            nxt.ev_M = np.array(prob.ev_M)
+            nxt.size_arcs(w)
+        f0 = 0.5 * float(np.sum(nxt.residuals(w) ** 2))
+        sol = solve_on(nxt, w, f0)
+        if not np.isfinite(sol["f"]):
+            break
+        prob, best = nxt, sol
+    return prob, best
 
 
 def _starts(task: CandidateTask, prob, free: tuple) -> list:
@@ -218,18 +264,21 @@ def _refit_record(task: CandidateTask, prob, free: tuple, best: dict, ev, t0: fl
     diagnosis scores it by."""
     w = best["w"]
     r = ev[0]
-    chi2 = float(r @ r) + prob.chi2_constant()
+    chi2, n_eff = prob.penalised_counts(r, w, ev)
     est = parameter_estimates(prob, w, ev)
     info = confounding(prob, w, ev, task.extra if task.effect else ())
     fitted = gap(feature_values(prob, w, r))
-    heldout = _heldout_gap(task, prob, w, r, ev, chi2) if task.folds else dict(gap_um=float("nan"))
+    heldout = _heldout_gap(task, prob, w, r, ev, (chi2, n_eff)) if task.folds else dict(gap_um=float("nan"))
     values = dict(task.values)
     values.update(zip(prob.theta.names, (float(v) for v in prob.theta.from_scaled(w[: prob.n_theta]))))
+    p0, p1 = prob.residual_groups()["priors"]
+    r_data = np.r_[r[:p0], r[p1:]]  # (records compare the data's rows: the priors' depend on the candidate)
     return CandidateResult(
         effect=task.effect, ok=bool(np.isfinite(chi2)), status=best["status"], iterations=best["iterations"],
         rounds=best.get("rounds", []),
-        chi2=chi2, n_obs=prob.n_observations(), n_eff=prob.n_effective(), free=list(free), law=task.law,
-        values=values, estimates=est, confounding=info, r=r, w=w, ev_M=np.array(prob.ev_M),
+        chi2=chi2, n_obs=prob.n_observations(), n_eff=n_eff, free=list(free), law=task.law,
+        priors=prob.prior_sd() or None,
+        values=values, estimates=est, confounding=info, r=r_data, w=w, ev_M=np.array(prob.ev_M),
         gap=fitted, heldout=heldout, wall_s=time.perf_counter() - t0, error=None, nulls=dict(task.nulls),
         regime=regime_of_left_out(task, values) if task.regime_runs else None,
         time_by_run=_time_by_run(prob, w, r) if task.effect is None else None,
@@ -250,11 +299,12 @@ def _time_by_run(prob, w, r) -> dict | None:
     return dict(chi2=q, df=int(t.size), p=float(stats.chi2.sf(q, t.size)))
 
 
-def _heldout_gap(task: CandidateTask, prob, w, r: np.ndarray, ev, chi2: float) -> dict:
+def _heldout_gap(task: CandidateTask, prob, w, r: np.ndarray, ev, counts: tuple) -> dict:
     """The held-out gap of the refit over ``task.folds``, or why it is missing (the fit
-    stands either way)."""
+    stands either way); ``counts``: its χ² and free dimensions
+    (:meth:`identify.fitting.problem.Problem.penalised_counts`)."""
     try:
-        nameable = could_be_named(task, chi2, prob.n_effective(), prob.n_observations())
+        nameable = could_be_named(task, *counts, prob.n_observations())
         ho = heldout_residuals(prob, w, task.folds, evaluated=ev, refit=nameable)
         if ho.unverified and not nameable:
             # a linear prediction the model contradicts is no number to report

@@ -208,6 +208,7 @@ def exact_fold(prob, w: np.ndarray, fold: Sequence[int]):
         held.size_arcs(w_h)
     sol = held.solve(w_h, fixed={i: float(th[i]) for i in range(n_th) if not own[i]})
     r_h = held.residuals(sol["w"])
+    r_h = r_h[: held.residual_groups()["priors"][0]]  # (a prior's rows, last, belong to no run)
     th = np.where(own, sol["w"][:n_th], th)
     if not np.all(np.isfinite(r_h)):
         raise RuntimeError(f"the held-out runs {fold} could not be predicted: {sol['status']}")

@@ -53,8 +53,9 @@ class CandidateResult:
     wall_s: float | None = None
     chi2: float | None = None
     n_obs: int | None = None
-    n_eff: int | None = None
+    n_eff: float | None = None  # free dimensions; a prior's parameters by their effective count
     free: list | None = None
+    priors: dict | None = None  # the priors' standard deviations (a rough track's, as the data chose them)
     law: str | None = None
     values: dict | None = None
     estimates: dict | None = None

@@ -49,7 +49,8 @@ def candidate_problem(task, free: tuple):
     from identify.model.symbolic import Model
 
     bounds = {n: b for n, b in {**dict(task.options.bounds), **task.bounds}.items() if n in free}
-    opts = replace(task.options, free=free, bounds=bounds, fixed={}, start={}, law=task.law,
+    priors = {n: s for n, s in {**dict(task.options.priors), **task.priors}.items() if n in free}
+    opts = replace(task.options, free=free, bounds=bounds, priors=priors, fixed={}, start={}, law=task.law,
                    threads=task.threads, max_iter=task.max_iter).evolve(
         # a candidate is scored by its Δnll: converging to 0.01 of a likelihood unit is plenty
         stat_tol=CANDIDATE_STAT_TOL,

@@ -53,8 +53,10 @@ def regime_screen(ids: Sequence[str], law: str, free: Sequence[str], values: dic
     another in this process."""
     say = progress or (lambda m: None)
     # (a per-run or per-device candidate has no value to set on runs no fit has seen: at one
-    # magnitude for every run it is its global candidate, screened already)
+    # magnitude for every run it is its global candidate, screened already; a rough track
+    # at its magnitude is one made-up track, not the runs')
     todo = [None] + list(dict.fromkeys(eid for eid in ids if get_effect(eid).scope is None
+                                       and not get_effect(eid).priors()
                                        and not get_effect(eid).applicable(tuple(free), law)))
     law_of = {eid: (get_effect(eid).law or law) if eid else law for eid in todo}
     say(f"regime screen: the current model and {len(todo) - 1} candidate(s) on {len(regime_runs)} run(s)")

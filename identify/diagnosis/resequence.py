@@ -69,8 +69,9 @@ def resequence(current, runs, fopts, prob0, say):
         f"{sol['slips_inserted']} slip(s) inserted, {sol['slips_removed']} removed: "
         f"χ² {2 * f0 + p.chi2_constant():.6g} -> {float(r @ r) + p2.chi2_constant():.6g}")
     changes = {k: int(sol[k]) for k in ("triggers_moved", "slips_inserted", "slips_removed")}
+    chi2, n_eff = p2.penalised_counts(r, sol["w"])
     new = dict(current, values=values, w=sol["w"], ev_M=np.array(p2.ev_M), n_theta=p2.n_theta,
-               chi2=float(r @ r) + p2.chi2_constant(), n_eff=p2.n_effective(),
+               chi2=chi2, n_eff=n_eff,
                sequence_changes=dict(changes, from_detected=bool(from_det)))
     return new, list(p2.runs), True
 
@@ -113,8 +114,10 @@ def rebuild_problem(current, runs, fopts, prob0):
     if tuple(current["free"]) == tuple(prob0.theta.names) and current["law"] == prob0.law.name and same_runs:
         return prob0, current["w"]
     bounds = {**dict(fopts.bounds), **current.get("bounds", {})}
+    priors = {**dict(fopts.priors), **(current.get("priors") or {})}
     opts = replace(fopts, free=tuple(current["free"]), law=current["law"], fixed={}, start={},
-                   bounds={n: b for n, b in bounds.items() if n in current["free"]})
+                   bounds={n: b for n, b in bounds.items() if n in current["free"]},
+                   priors={n: s for n, s in priors.items() if n in current["free"]})
     p = Problem(runs, Model(get_law(current["law"])), dict(current["values"]), opts)
     if len(current["ev_M"]) == p.E:
         p.ev_M = np.array(current["ev_M"])

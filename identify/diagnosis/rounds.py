@@ -246,10 +246,10 @@ def _start_state(baseline, opts: DiagnosisOptions, executor, say) -> _State:
         say(f"simulating the {len(regime_runs)} run(s) left out for their regime under the baseline")
     notes: list = []
     where0 = with_regime(where(prob, w), regime_check_notes(prob.law.name, values0, regime_runs, notes))
-    r0 = prob.residuals(w)
+    chi2_0, n_eff_0 = prob.penalised_counts(prob.residuals(w), w)
     current = dict(values=values0, free=tuple(prob.theta.names), law=prob.law.name,
                    w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta,
-                   chi2=float(r0 @ r0) + prob.chi2_constant(), n_eff=prob.n_effective())
+                   chi2=chi2_0, n_eff=n_eff_0, priors=prob.prior_sd())
     threads = 1 if (opts.workers > 1 or opts.dask) else max(int(fopts.threads), 1)
     return _State(opts=opts, fopts=fopts, prob=prob, folds=folds, regime_runs=regime_runs, where0=where0,
                   current=current, runs=runs, threads=threads, executor=executor, say=say,
@@ -356,7 +356,8 @@ def _add_named(st: _State, chosen: CandidateResult, adopted: dict | None, scored
     else:
         st.current = dict(values=chosen.values, free=tuple(chosen.free), law=chosen.law,
                           w=chosen.w, ev_M=chosen.ev_M, n_theta=len(chosen.free), chi2=chosen.chi2,
-                          n_eff=chosen.n_eff, bounds={**st.current.get("bounds", {}), **dict(eff.bounds)})
+                          n_eff=chosen.n_eff, bounds={**st.current.get("bounds", {}), **dict(eff.bounds)},
+                          priors={**(st.current.get("priors") or {}), **(chosen.priors or {})})
     st.say(f"added {chosen.effect} ({', '.join(eff.parameters) or eff.law}); trying the rest again")
     if len(st.effects) >= opts.max_effects:
         st.remaining = []
@@ -408,7 +409,7 @@ def _regime_left_out(st: _State, regime_final):
         st.current = dict(values={**cur["values"], **best["values"]}, free=tuple(cur["free"]) + (name,),
                           law=cur["law"], w=best["w"], ev_M=best["ev_M"], n_theta=len(cur["free"]) + 1,
                           chi2=best["chi2"], n_eff=cur.get("n_eff"),
-                          bounds={**cur.get("bounds", {}), **dict(eff.bounds)})
+                          bounds={**cur.get("bounds", {}), **dict(eff.bounds)}, priors=cur.get("priors"))
     elif profile is not None:
         profile.pop("best", None)
     return screen, later, profile, named
@@ -542,7 +543,8 @@ def _own_sequence(c, base, current, runs, fopts, prob0, folds, opts, threads, ex
         eff = get_effect(c.effect, runs)
         cand = dict(values=dict(c.values), free=tuple(c.free), law=c.law, w=c.w, ev_M=c.ev_M,
                     n_theta=len(c.free), chi2=c.chi2, n_eff=c.n_eff,
-                    bounds={**current.get("bounds", {}), **dict(eff.bounds)})
+                    bounds={**current.get("bounds", {}), **dict(eff.bounds)},
+                    priors={**(current.get("priors") or {}), **(c.priors or {})})
         say(f"  {c.effect} explains {100 * c.explained_share:.0f} % of the excess χ² but closes "
             f"{100 * max(c.closed_fraction, 0):.0f} % of the held-out gap: measured on its own mode sequence")
         new, runs2, changed = resequence(cand, runs, fopts, prob0, say)

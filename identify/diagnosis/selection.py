@@ -162,9 +162,11 @@ def refit_beside(chosen, scored, base, current, runs, fopts, opts, threads, exec
         # starts for the topography, whichever fits best at the start
         starts = [dict(own)] + [s for s in candidate_starts(eff, nulls, where_hint) if not s.get("_basin")]
         task = CandidateTask(
-            effect=chosen.effect, runs=runs, law=rival.law, values={**rival.values, **nulls}, free=free,
+            effect=chosen.effect, runs=runs, law=rival.law, values={**rival.values, **eff.fixed_values(), **nulls},
+            free=free,
             extra=tuple(n for n in eff.parameters if n not in free),
             bounds={**current.get("bounds", {}), **dict(reff.bounds), **dict(eff.bounds)},
+            priors={**(current.get("priors") or {}), **(rival.priors or {}), **(chosen.priors or {})},
             starts=starts, nulls=nulls, w_tail=np.asarray(rival.w)[len(free):],
             ev_M=rival.ev_M, options=fopts, folds=[], max_iter=opts.max_iter, threads=threads,
             null_chi2=rival.chi2, null_n_eff=rival.n_eff, screen_p=opts.alpha)

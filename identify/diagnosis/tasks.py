@@ -27,7 +27,7 @@ def candidate_tasks(ids, current, runs, fopts, folds, opts, threads, where_hint,
     common = dict(runs=runs, values=current["values"], free=current["free"], w_tail=tail, ev_M=current["ev_M"],
                   options=fopts, folds=folds, max_iter=opts.max_iter, threads=threads,
                   null_chi2=current.get("chi2"), null_n_eff=current.get("n_eff"), screen_p=opts.alpha,
-                  regime_runs=list(regime_runs))
+                  regime_runs=list(regime_runs), priors=dict(current.get("priors") or {}))
     added = dict(current.get("bounds", {}))  # bounds of the effects already added
     tasks = [CandidateTask(effect=None, law=current["law"], bounds=added, **common)]
     skipped = []
@@ -62,11 +62,11 @@ def candidate_tasks(ids, current, runs, fopts, folds, opts, threads, where_hint,
         m = (at_magnitude or {}).get(eid)
         if m and m.get("parameter") in eff.parameters:
             starts = starts + [{**nulls, m["parameter"]: float(m["value"])}]
-        vals = {**current["values"], **nulls}
+        vals = {**current["values"], **eff.fixed_values(), **nulls}
         tasks.append(CandidateTask(effect=eid, law=current["law"], extra=tuple(eff.parameters),
                                    bounds={**added, **dict(eff.bounds)}, starts=starts, nulls=nulls,
                                    magnitude=realistic_magnitude(eff, nulls) if opts.magnitude_check else None,
-                                   **{**common, "values": vals}))
+                                   **{**common, "values": vals, "priors": {**common["priors"], **eff.priors()}}))
     return tasks, skipped
 
 

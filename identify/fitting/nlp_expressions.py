@@ -13,6 +13,7 @@ import numpy as np
 
 from identify.fitting.arc_callback import ArcCallback, blockdiag_sparsity
 from identify.fitting.mode_sequence.triggers import START_SCALE_UM
+from identify.model.params import topo_field_names
 from identify.model.scopes import parse
 from identify.model.symbolic import LENGTH_UNIT
 
@@ -123,6 +124,8 @@ class NLPExpressions:
             mu = self.law.static_coefficient(zss, Pr, ops=ca) + P["A"] * ca.log(1 + vp / P["vc"])
             f = self.model.spring_force(r.steady_mean_e, Pr, ops=ca)
             res.append((f - mu * self.model.normal_load(Pr)) / (r.k * r.steady_se))
+        for n, sd in self.prior_sd().items():
+            res.append(P[n] / sd)  # a zero-mean Gaussian prior (FitOptions.priors), last
         return A, ca.vertcat(*res), g
 
     def build(self):
@@ -139,7 +142,8 @@ class NLPExpressions:
             ix = self.arcs.index
             # the block position matters to an arc only through the topography ripple:
             # without it, two fewer integrations per arc and Jacobian
-            topo = "topo_amp" in self.theta.names or self.values.get("topo_amp", 0.0) != 0.0
+            topo = any(n in self.theta.names or self.values.get(n, 0.0) != 0.0
+                       for n in ("topo_amp", *topo_field_names()))
             rows = ([ix["x0_um"]] if topo else []) + [ix["e0_um"], ix["state0"]] \
                 + [ix[n] for n in dict.fromkeys(parse(m)[0] for m in self.theta.names) if n in ix]
             self._cb_jac = ArcCallback("arc_jacs", self.arcs, E, opts.threads, True, self.counter, rows,

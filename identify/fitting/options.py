@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 
@@ -53,6 +54,13 @@ class FitOptions:
         name -> (lower, upper) for free parameters (default: the parameter table's).
     start : dict
         Start values for free parameters (default: the reduced analysis, else the preset).
+    priors : dict
+        name -> standard deviation (SI) of a Gaussian prior centred on 0, for free
+        parameters whose size the data should have to argue for (the rough track's
+        coefficients, :class:`identify.model.effects.TopographyField`). Each adds a residual
+        θ/σ; the χ² the fit reports includes them, and
+        :meth:`identify.fitting.problem.Problem.penalised_counts` separates them and
+        counts the free dimensions as the penalty implies.
     free_offset : bool
         Estimate a per-run elongation zero offset.
     use_creep_runs : bool
@@ -173,6 +181,7 @@ class FitOptions:
     fixed: Mapping[str, float] = field(default_factory=dict)
     bounds: Mapping[str, tuple] = field(default_factory=dict)
     start: Mapping[str, float] = field(default_factory=dict)
+    priors: Mapping[str, float] = field(default_factory=dict)
     free_offset: bool = False
     use_creep_runs: bool = True
     max_arc_steps: int = 64
@@ -272,6 +281,11 @@ class FitOptions:
                 raise ValueError(f"bounds: {name} is not free")
             if not lo < hi:
                 raise ValueError(f"bounds: {name} needs lower < upper, got ({lo}, {hi})")
+        for name, sd in dict(self.priors).items():
+            if name not in free:
+                raise ValueError(f"priors: {name} is not free")
+            if not (isinstance(sd, (int, float)) and math.isfinite(sd) and sd > 0):
+                raise ValueError(f"priors: {name} needs a standard deviation > 0, got {sd!r}")
         for name in ("max_arc_steps", "max_iter", "threads"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: must be a positive integer")

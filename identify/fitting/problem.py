@@ -530,15 +530,44 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
         return self.n_theta + self.n_off + per_run * sum(1 for r in self.runs if r.kind == "events") + first_starts
 
     def residual_groups(self) -> dict:
-        """Index ranges of the residual vector: plateaus, slopes, triggers, creep."""
+        """Index ranges of the residual vector: plateaus, slopes, triggers, creep, priors."""
         n_slope = sum(1 for r in self.runs if r.kind == "events" and r.s_nn > 0)
         p = self.P
         t0 = p + n_slope
         # phase rows exist with any slip; then the first slips' start positions
         t1 = t0 if self.interval_triggers else \
             t0 + self.n_trig + (self.n_phase if self.E else 0) + (len(self.ev_firsts) if self.n_s else 0)
+        t2 = t1 + len(self.creep_runs)
         return dict(plateaus=(0, p), slopes=(p, t0), triggers=(t0, t1),
-                    creep=(t1, t1 + len(self.creep_runs)))
+                    creep=(t1, t2), priors=(t2, t2 + len(self.prior_sd())))
+
+    def prior_sd(self) -> dict:
+        """The priors' standard deviations (SI) of the free parameters that have one
+        (:attr:`identify.fitting.options.FitOptions.priors`), in the order of their rows."""
+        pri = dict(self.opts.priors)
+        return {n: float(pri[n]) for n in self.theta.names if n in pri}
+
+    def penalised_counts(self, r: np.ndarray, w: np.ndarray | None = None, evaluated=None) -> tuple:
+        """(χ² of the data, free dimensions) of residual vector ``r`` (at ``w``): the
+        priors' rows taken out of the χ², and the penalised parameters counted by the
+        effective degrees of freedom their penalty leaves them (the trace of the hat
+        matrix), tr(B⁻¹·B_data) over the parameters, B the information with the priors,
+        so that a likelihood-ratio test or AIC compares like with like (a penalised
+        spline's usual count). Without priors: (χ² + the plateaus' constant,
+        :meth:`n_effective`)."""
+        p0, p1 = self.residual_groups()["priors"]
+        r = np.asarray(r, float)
+        chi2 = float(r[:p0] @ r[:p0]) + float(r[p1:] @ r[p1:]) + self.chi2_constant()
+        if p1 == p0:
+            return chi2, float(self.n_effective())
+        if evaluated is None:
+            evaluated = self.evaluate(w, jac=True)
+        B = self.information(w, evaluated)
+        Jp = evaluated[2][p0:p1][:, : self.n_theta]
+        Jp = np.asarray(Jp.toarray() if hasattr(Jp, "toarray") else Jp)
+        lam = Jp.T @ Jp
+        shrink = float(np.trace(np.linalg.pinv(B, rcond=1e-12, hermitian=True) @ lam))
+        return chi2, float(self.n_effective()) - min(max(shrink, 0.0), float(p1 - p0))
 
     def trigger_runs(self) -> np.ndarray:
         """Run index of each trigger residual (slips, then one phase residual per run)."""

@@ -19,11 +19,21 @@ import math
 from collections.abc import Mapping
 from typing import ClassVar
 
-from identify.model.params import spec
+import numpy as np
+
+from identify.model.params import TOPO_MODES, spec, topo_field_names
 
 __all__ = ["Effect", "EFFECTS", "get_effect", "effect_ids"]
 
 EFFECTS: dict[str, Effect] = {}
+
+ROUGHNESS_START = 0.02
+"""The rough track's first prior scale ρ (:class:`TopographyField`): a friction coefficient
+varying by a few hundredths along the track, as a sinusoidal ripple's realistic 0.03."""
+ROUGHNESS_FLOOR = 1e-4
+"""Below this prior scale the field is flat for any data (μ to 1e-4: a few nm of slip)."""
+TRACK_LENGTH_FACTOR = 1.25
+MIN_TRACK_LENGTH = 5e-6
 
 
 class Effect:
@@ -162,6 +172,16 @@ class Effect:
         """Per run of ``runs`` (sequence of (name, device)), the values that switch a per-run
         or per-device effect on (withheld-effect data sets); [] for a global effect."""
         return []
+
+    def fixed_values(self) -> dict:
+        """Values of parameters the candidate sets but does not fit (the rough track's
+        period), added to the current model's when it is tried."""
+        return {}
+
+    def priors(self, roughness: float | None = None) -> dict:
+        """Standard deviations of zero-mean Gaussian priors on the candidate's parameters
+        (:attr:`identify.fitting.options.FitOptions.priors`); {}: none."""
+        return {}
 
     def confounded_reason(self) -> str | None:
         """Why a bound per-device candidate has nothing to free (one device only), or None."""
@@ -383,6 +403,65 @@ class Topography(Effect):
     def simulation_values(self, magnitude=None, values=None):
         return {"topo_amp": float(0.03 if magnitude is None else magnitude), "topo_wavelength": 4e-6,
                 "topo_phase": 0.7}
+
+
+class TopographyField(Effect):
+    """A rough track: friction varying along it as a smooth random field shared by every
+    run, μ_topo(x) = Σⱼ cⱼ·cos(2πjx/L) + sⱼ·sin(2πjx/L); null every coefficient 0.
+
+    The roughness is the data's to choose. The coefficients carry a Gaussian prior
+    cⱼ, sⱼ ~ N(0, (ρ/j)²) (a field of finite slope variance: mode j's share falls as 1/j),
+    and ρ is set by the evidence (MacKay's update ρ² = Σⱼ j²·(cⱼ² + sⱼ²)/γ, γ the
+    effective degrees of freedom the prior leaves; :func:`roughness_update`). The
+    likelihood-ratio test and the information criteria count γ, not the
+    2·:data:`identify.model.params.TOPO_MODES` coefficients. L is 1.25 times the longest
+    travel of the runs (the series need not repeat on the track); its magnitude, for a
+    withheld data set, is the track's rms friction variation."""
+
+    id = "topography_field"
+    parameters = topo_field_names()
+    null = {n: 0.0 for n in topo_field_names()}
+    bounds = {n: (-0.3, 0.3) for n in topo_field_names()}
+    touches = ("position", "static_friction", "slip_length")
+    magnitude = ("topo_amp", 0.03, "-")
+    length: float | None = None  # bound: L, m
+    roughness: float = ROUGHNESS_START
+
+    def bind(self, runs) -> Effect:
+        """This candidate with L set from the runs' travel (their block positions)."""
+        travel = [float(np.nanmax(r.plateau_level0)) for r in (runs or ())
+                  if getattr(r, "plateau_level0", None) is not None and len(r.plateau_level0)]
+        if not travel:
+            return self
+        bound = copy.copy(self)
+        bound.length = max(TRACK_LENGTH_FACTOR * max(travel), MIN_TRACK_LENGTH)
+        return bound
+
+    def fixed_values(self) -> dict:
+        return {} if self.length is None else {"topo_length": float(self.length)}
+
+    def priors(self, roughness: float | None = None) -> dict:
+        rho = float(self.roughness if roughness is None else roughness)
+        return {n: rho / int(n[6:]) for n in self.parameters}
+
+    def simulation_values(self, magnitude=None, values=None):
+        """A rough track of rms ``magnitude`` (over its period) on a period of 50 µm: one
+        fixed draw of the prior's 1/j spectrum, on a period the fit's own L (set by the
+        travel) does not share, so that its series has to approximate the track, not
+        copy it."""
+        rms = float(self.magnitude[1] if magnitude is None else magnitude)
+        rng = _rng(0, 3)
+        j = np.repeat(np.arange(1, TOPO_MODES + 1), 2)
+        coef = rng.standard_normal(j.size) / j
+        coef *= rms / math.sqrt(0.5 * float(coef @ coef))
+        return {"topo_length": 5e-5, **dict(zip(topo_field_names(), (float(c) for c in coef)))}
+
+
+def roughness_update(values: Mapping[str, float], edf: float, floor: float = ROUGHNESS_FLOOR) -> float:
+    """MacKay's evidence update of the rough track's prior scale ρ: Σⱼ j²·(cⱼ² + sⱼ²)/γ,
+    γ the effective degrees of freedom of the coefficients (at least ``floor``)."""
+    ss = sum(int(n[6:]) ** 2 * float(values.get(n, 0.0)) ** 2 for n in topo_field_names())
+    return max(math.sqrt(ss / max(edf, 0.5)), floor)
 
 
 class Drift(Effect):

@@ -22,6 +22,8 @@ from identify.model.plausible import PARAMETER_RANGES
 __all__ = [
     "ParamSpec",
     "SPECS",
+    "TOPO_MODES",
+    "topo_field_names",
     "CONDITION_SPECS",
     "PARAMETER_SETS",
     "EPS_AIR",
@@ -137,6 +139,10 @@ _PLATFORM = [
 
 # Model extensions with a null value that gives back the paper's model. The simulator
 # always carries them, so one compiled model serves every candidate of the diagnosis.
+TOPO_MODES = 8
+"""Modes of the rough track's Fourier series (:class:`identify.model.effects.TopographyField`):
+wavelengths down to L/8, a few µm on a track of tens of µm, longer than a slip."""
+
 _EFFECTS = [
     _s("v_stick", "m/s", 0.0, 0.0, 1.0, 1e-4, kind="effect",
        description="stick threshold (Karnopp band): a block slower than this is held while the "
@@ -160,6 +166,13 @@ _EFFECTS = [
        description="topography: wavelength of the ripple", display_unit="µm", display_factor=1e6),
     _s("topo_phase", "rad", 0.0, -1e3, 1e3, 1.0, kind="effect",
        description="topography: phase of the ripple at x = 0"),
+    _s("topo_length", "m", 5e-5, 1e-7, 1e-2, 5e-5, log=True, kind="effect",
+       description="rough track: the period L of its Fourier series (longer than the track travelled, "
+       "so the series need not repeat on it)", display_unit="µm", display_factor=1e6),
+    *(_s(f"topo_{part}{j}", "-", 0.0, -1.0, 1.0, 0.01, kind="effect",
+         description=f"rough track: {'cosine' if part == 'c' else 'sine'} coefficient of mode {j}, "
+         f"wavelength L/{j}")
+      for j in range(1, TOPO_MODES + 1) for part in ("c", "s")),
 ]
 
 # Measurement-side parameters (they change what the camera reports, not the motion).
@@ -172,6 +185,11 @@ _MEASUREMENT = [
        description="exposure time: each frame averages e over it (motion blur)",
        display_unit="ms", display_factor=1e3),
 ]
+
+def topo_field_names() -> tuple:
+    """The rough track's coefficients, mode by mode: topo_c1, topo_s1, topo_c2, ..."""
+    return tuple(f"topo_{part}{j}" for j in range(1, TOPO_MODES + 1) for part in ("c", "s"))
+
 
 SPECS: dict[str, ParamSpec] = {p.name: p for p in _FRICTION + _PLATFORM + _EFFECTS + _MEASUREMENT}
 

@@ -40,7 +40,7 @@ import numpy as np
 
 from identify.model.compiled import compiled
 from identify.model.laws import AgingLaw, Exponential, get_law
-from identify.model.params import SPECS
+from identify.model.params import SPECS, TOPO_MODES, topo_field_names
 
 __all__ = [
     "Model",
@@ -128,8 +128,17 @@ class Model:
         return P["step_size"] * P["step_scale"]
 
     def topography(self, x, P, ops=np):
-        """Friction-coefficient ripple along the track: a·sin(2πx/λ + φ)."""
-        return P["topo_amp"] * ops.sin(2 * np.pi * x / P["topo_wavelength"] + P["topo_phase"])
+        """Friction coefficient's part that varies along the track: a ripple
+        a·sin(2πx/λ + φ) plus a rough track Σⱼ cⱼ·cos(2πjx/L) + sⱼ·sin(2πjx/L)
+        (:data:`identify.model.params.TOPO_MODES` modes)."""
+        out = P["topo_amp"] * ops.sin(2 * np.pi * x / P["topo_wavelength"] + P["topo_phase"])
+        coef = [P[n] for n in topo_field_names()]
+        if all(isinstance(c, (int, float)) and c == 0 for c in coef):
+            return out  # (the field off, as numbers: no terms to evaluate)
+        th = 2 * np.pi * x / P["topo_length"]
+        for j in range(1, TOPO_MODES + 1):
+            out = out + P[f"topo_c{j}"] * ops.cos(j * th) + P[f"topo_s{j}"] * ops.sin(j * th)
+        return out
 
     def static_coefficient(self, state, x, P, ops=np):
         """Static capacity per unit load at rest: ψ(state) + μ_topo(x)."""

@@ -14,7 +14,7 @@ from identify.model.symbolic import Model
 
 REQUIRED = ("velocity_strengthening", "aging_logarithmic", "aging_logistic", "rejuvenation", "damping",
             "spring_nonlinearity", "spring_constant", "load_offset", "load_scale", "step_size", "topography",
-            "drift", "motion_blur", "stick_threshold")
+            "drift", "motion_blur", "stick_threshold", "topography_field")
 
 
 def test_library_has_every_required_effect_with_docstring_equations():
