@@ -7,6 +7,7 @@ from __future__ import annotations
 from identify.diagnosis.regime_notes import regime_left_note
 from identify.diagnosis.scores import evidence_of
 from identify.diagnosis.selection import at_noise, gap_ratio
+from identify.model.effects import get_effect
 
 __all__ = ["verdict", "final_record"]
 
@@ -56,8 +57,12 @@ def verdict(st, where_final: list, regime_final) -> tuple[str, float]:
 def final_record(st, ok: bool, ratio: float, profile: dict | None) -> dict:
     """The final model's law, free values and gaps, as the result's ``final``."""
     final_res, current = st.final_res, st.current
+    # with the values a named effect sets without fitting them (the rough track's period:
+    # its coefficients mean nothing without it)
+    set_by = {n for e in st.effects for n in get_effect(e).sets}
     final = dict(law=current["law"], free=list(current["free"]),
-                 values={n: current["values"][n] for n in current["free"]},
+                 values={n: current["values"][n] for n in (*current["free"], *sorted(set_by))
+                         if n in current["values"]},
                  gap_um=final_res.gap["gap_um"] if ok else float("nan"),
                  heldout_gap_um=final_res.heldout["gap_um"] if ok else float("nan"),
                  noise_um=final_res.gap["noise_um"] if ok else float("nan"))
@@ -70,3 +75,4 @@ def final_record(st, ok: bool, ratio: float, profile: dict | None) -> dict:
                      regime_slip_gap_after_um=profile["slip_gap_after_um"],
                      regime_slip_gap_heldout_um=profile["slip_gap_heldout_um"])
     return final
+

@@ -75,6 +75,7 @@ class Effect:
     magnitude: ClassVar[tuple] = ()
     scope: ClassVar[str | None] = None
     reference: ClassVar[bool] = False
+    sets: ClassVar[tuple] = ()  # parameters it sets from the runs without fitting them (fixed_values)
     labels: tuple = ()  # bound: the runs or devices with a parameter of their own
     reference_label: str | None = None  # bound: the device kept at the null
     n_labels: int | None = None  # bound: how many runs or devices the data have in this scope
@@ -399,6 +400,7 @@ class Topography(Effect):
     bounds = {"topo_amp": (-0.3, 0.3), "topo_wavelength": (1e-6, 1e-4), "topo_phase": (-20.0, 20.0)}
     touches = ("position", "static_friction", "slip_length")
     magnitude = ("topo_amp", 0.03, "-")
+    sets = ("topo_length",)
 
     def simulation_values(self, magnitude=None, values=None):
         return {"topo_amp": float(0.03 if magnitude is None else magnitude), "topo_wavelength": 4e-6,
@@ -424,6 +426,7 @@ class TopographyField(Effect):
     bounds = {n: (-0.3, 0.3) for n in topo_field_names()}
     touches = ("position", "static_friction", "slip_length")
     magnitude = ("topo_amp", 0.03, "-")
+    sets = ("topo_length",)
     length: float | None = None  # bound: L, m
     roughness: float = ROUGHNESS_START
 

@@ -131,3 +131,20 @@ def test_the_jacobian_of_a_coefficient_agrees_with_differences(runs, name, colum
     w = prob.initial_w({"mu_max": TRUTH["mu_max"], name: 0.01})
     prob.size_arcs(w)
     column_agrees(prob, w, 1, 1e-4, 1e-3, 1e-5)
+
+
+def test_the_final_model_reports_the_period_its_named_track_was_fitted_on():
+    """Measured: the slow rough-track test read the final field on the table's period
+    (50 µm) instead of the fit's (36 µm), its coefficients then meaning another track."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis.verdict import final_record
+
+    rec = SimpleNamespace(gap=dict(gap_um=0.03, noise_um=0.025), heldout=dict(gap_um=0.031))
+    values = {"mu_max": 0.74, "topo_length": 36e-6, "k_scale": 1.0, **{n: 0.01 for n in FIELD}}
+    st = SimpleNamespace(final_res=rec, effects=["topography_field"],
+                         current=dict(law="exponential", free=("mu_max",) + FIELD, values=values))
+    final = final_record(st, True, 1.2, None)
+    assert final["values"]["topo_length"] == 36e-6 and "k_scale" not in final["values"]
+    st.effects = []
+    assert "topo_length" not in final_record(st, True, 1.2, None)["values"]
