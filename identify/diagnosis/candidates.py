@@ -19,7 +19,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -121,8 +121,6 @@ def _roughness_rounds(task: CandidateTask, prob, free: tuple, best: dict):
     """The refit with its priors' scale chosen by the data: the scale updated from the
     coefficients and their effective degrees of freedom, and the refit solved again from
     its end, until the scale settles. Returns the problem and end of the last refit."""
-    from dataclasses import replace as _replace
-
     from identify.model.effects import roughness_update
 
     eff = get_effect(task.effect)
@@ -138,7 +136,7 @@ def _roughness_rounds(task: CandidateTask, prob, free: tuple, best: dict):
         if abs(math.log(new / rho)) < math.log(1 + ROUGHNESS_RTOL):
             break
         rho = new
-        nxt = candidate_problem(_replace(task, priors={**task.priors, **eff.priors(rho)}), free)
+        nxt = candidate_problem(replace(task, priors={**task.priors, **eff.priors(rho)}), free)
         nxt.give_up = give_up_rule(task, nxt)
         if nxt.E:
             nxt.ev_M = np.array(prob.ev_M)

@@ -75,4 +75,3 @@ def final_record(st, ok: bool, ratio: float, profile: dict | None) -> dict:
                      regime_slip_gap_after_um=profile["slip_gap_after_um"],
                      regime_slip_gap_heldout_um=profile["slip_gap_heldout_um"])
     return final
-
