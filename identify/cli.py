@@ -52,7 +52,10 @@ class CLIError(ValueError):
 
 
 def _parse_params(items: Sequence[str] | None, flag: str = "--param") -> dict[str, float]:
-    """``["tau=0.05", "A=0"]`` -> {"tau": 0.05, "A": 0.0}."""
+    """``["tau=0.05", "A=0"]`` -> {"tau": 0.05, "A": 0.0}; ``exposure_align`` also takes
+    start, centre or end."""
+    from identify.model.params import ParameterError, exposure_align
+
     out: dict[str, float] = {}
     for item in items or []:
         for part in item.split(","):
@@ -64,7 +67,12 @@ def _parse_params(items: Sequence[str] | None, flag: str = "--param") -> dict[st
             try:
                 out[name.strip()] = float(value)
             except ValueError:
-                raise CLIError(f"{flag} {part!r}: {value!r} is not a number") from None
+                if name.strip() != "exposure_align":
+                    raise CLIError(f"{flag} {part!r}: {value!r} is not a number") from None
+                try:
+                    out[name.strip()] = exposure_align(value)
+                except ParameterError as err:
+                    raise CLIError(f"{flag} {part!r}: {err}") from None
     return out
 
 
@@ -233,13 +241,17 @@ def _add_fit_arguments(p, json_required: bool):
                         "runs (imported lab data) the rate-and-state law: aging (default) or slip")
     p.add_argument("--free", default=None, metavar="NAMES",
                    help="comma-separated free parameters (default mu_max,mu_min,tau,A); drift_rate, k_scale, "
-                   "load_offset and load_scale may take one value per run or device: drift_rate@run (every run), "
-                   "drift_rate@run:NAME (one run), k_scale@device:LABEL (a trace's device, else k<spring constant>)")
+                   "load_offset, load_scale and clock_shift may take one value per run or device: drift_rate@run "
+                   "(every run), drift_rate@run:NAME (one run), k_scale@device:LABEL (a trace's device, else "
+                   "k<spring constant>)")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
                    help="fix a parameter at a value, SI (repeatable; e.g. --fix v_stick=1e-5)")
     p.add_argument("--bound", action="append", metavar="NAME=LO:HI", help="bounds of a free parameter")
     p.add_argument("--start", action="append", metavar="NAME=VALUE", help="start value of a free parameter")
     p.add_argument("--free-offset", action="store_true", help="estimate a per-run elongation zero offset")
+    p.add_argument("--drop-frames", action="store_true",
+                   help="observe the frames around each slip one by one: an exposure straddling a slip shows there "
+                   "(free exposure, with --fix exposure_align=start|centre|end or a clock_shift@run free)")
     p.add_argument("--outside-platform-ranges", action="store_true",
                    help="take --fix and --start values outside what a contact on the platform can plausibly have "
                    "(refused otherwise, as a likely unit slip: tau=67.4 is ms typed for s)")
@@ -301,7 +313,8 @@ def _fit_options(args):
     stick = _stick_mode(args)  # (first: a speed given there joins --fix)
     return FitOptions(law=args.law or "exponential", free=free, fixed=_parse_params(args.fix, "--fix"),
                       bounds=_parse_bounds(args.bound), start=_parse_params(args.start, "--start"),
-                      free_offset=args.free_offset, multistart=args.multistart, seed=args.seed,
+                      free_offset=args.free_offset, drop_frames=getattr(args, "drop_frames", False),
+                      multistart=args.multistart, seed=args.seed,
                       solver=args.solver, trigger=args.trigger, stick_speed=stick,
                       check_platform=not getattr(args, "outside_platform_ranges", False),
                       **({} if args.sequence_trials is None else {"sequence_trials": args.sequence_trials}),

@@ -408,7 +408,7 @@ def _runs_to_fit(runs_ev, preset, opts, left: _LeftOut, say) -> tuple[list, dict
     v_stick = float({**preset, **opts.start}.get("v_stick", 0.0))
     run_data, stepping = [], {}
     for ev in runs_ev:
-        rd = make_run_data(ev, v_stick=v_stick)
+        rd = make_run_data(ev, v_stick=v_stick, drops=opts.drop_frames)
         if rd.kind == "creep" and make_run_data(ev).kind == "events":
             stepping[rd.name] = (f"the block moves during its plateaus at {ev.creep_ratio:.2f} of the puller "
                                  f"speed: it steps between its slips, which the model under the stick option "

@@ -17,41 +17,109 @@ from identify.model.params import topo_field_names
 from identify.model.scopes import parse
 from identify.model.symbolic import LENGTH_UNIT
 
-__all__ = ["NLPExpressions"]
+__all__ = ["NLPExpressions", "staircase_blur", "BLUR_STEPS"]
+
+BLUR_STEPS = 3
+"""Puller steps on each side of a frame an exposure window may reach (T·fp up to 3)."""
+
+
+def staircase_blur(u, H, a):
+    """n̄ − n: how far the puller's staircase averaged over a frame's exposure lies above
+    its count at the timestamp, in steps.
+
+    A frame at step phase ``u`` (fraction of the step interval since the last step)
+    averages over [u − a·H, u + (1 − a)·H] in step units, ``H`` = T·fp the exposure in
+    step periods and ``a`` the share of it before the timestamp (``exposure_align``):
+    the window's share past each later step m ≥ 1, less its share before each step
+    m ≤ 0 it starts before. Element-wise over ``u`` (and ``H``); 0 at H = 0.
+    """
+    Hs = H + 1e-30
+    out = 0
+    for m in range(BLUR_STEPS):
+        out = out + ca.fmin(ca.fmax((u + (1 - a) * H - (m + 1)) / Hs, 0), 1) \
+                  - ca.fmin(ca.fmax((a * H - u - m) / Hs, 0), 1)
+    return out
 
 
 class NLPExpressions:
     """The NLP's expressions and Functions (mixed into the problem, whose layout they read)."""
 
+    def _blurred(self) -> bool:
+        return "exposure" in self.theta.names or self.values.get("exposure", 0.0) != 0.0
+
+    def _drift_at(self, P, runs: np.ndarray, t: np.ndarray):
+        """The camera's drift at times ``t`` (s) of rows of ``runs`` (m; 0 without one)."""
+        if "drift_rate" in self.scoped_bases:  # a rate per run
+            return self.per_run_column(P, "drift_rate", runs) * ca.DM(t)
+        if "drift_rate" in self.theta.names or self.values.get("drift_rate", 0.0) != 0.0:
+            return P["drift_rate"] * ca.DM(t)
+        return ca.DM.zeros(len(t), 1)
+
     def _camera_terms(self, P, step):
         """What the camera adds to each plateau's mean elongation (m).
 
         Drift: + drift_rate·t̄_p (t̄_p the plateau's mean frame time).
-        Motion blur: a frame at step phase u (fraction of the step interval since the
-        last step) averaging e over an exposure T centred on it reads, with h = T·fp/2
-        (T·fp ≤ 1),  e(t) + Δx·[max(0, u + h − 1) − max(0, h − u)]/(2h): a part of the
-        next step when the window reaches it, minus a part of the current one when the
-        window starts before it. Frames placed symmetrically in the step interval (the
-        usual two frames per step at u = ¼, ¾) cancel in the plateau mean: the blur then
-        shows only in frames taken during a slip, which the plateaus leave out.
+        Motion blur: a frame averages e over an exposure T placed on its timestamp by
+        ``exposure_align`` (:func:`staircase_blur`); on a plateau the puller's staircase
+        is all that moves. Frames placed symmetrically in the step interval (the usual
+        two frames per step at u = ¼, ¾) cancel in a centred exposure's plateau mean: the
+        blur then shows only in frames taken around a slip, which the plateaus leave out
+        and ``FitOptions.drop_frames`` observes (:meth:`_drop_residuals`).
         """
-        out = ca.DM.zeros(self.P, 1)
-        if "drift_rate" in self.scoped_bases:  # a rate per run
-            out = out + self.per_run_column(P, "drift_rate", self.pl_run) * ca.DM(self.pl_mean_t)
-        elif "drift_rate" in self.theta.names or self.values.get("drift_rate", 0.0) != 0.0:
-            out = out + P["drift_rate"] * ca.DM(self.pl_mean_t)
-        if "exposure" in self.theta.names or self.values.get("exposure", 0.0) != 0.0:
+        out = self._drift_at(P, self.pl_run, self.pl_mean_t)
+        if self._blurred():
             rows = []
             for r in self.runs:
                 if r.kind != "events":
                     continue
-                u = ca.DM(r.frame_phases).T  # 1 × U
-                h = P["exposure"] * r.fp / 2
-                b = (ca.fmax(0, u + h - 1) - ca.fmax(0, h - u)) / (2 * h + 1e-30)
+                b = staircase_blur(ca.DM(r.frame_phases).T, P["exposure"] * r.fp, P["exposure_align"])  # 1 × U
                 counts = ca.DM(r.phase_counts)  # plateaus × U
                 rows.append(ca.mtimes(counts, b.T) / ca.DM(np.maximum(r.plateau_n, 1)))
             out = out + step * ca.vertcat(*rows)
         return out
+
+    def _drop_residuals(self, w, P, step):
+        """Residuals of the frames around the slips (``FitOptions.drop_frames``), each in
+        its noise units: the elongation Δx·n(t) − x(t) averaged over the frame's exposure,
+        n(t) the puller's staircase and x(t) the block moving from its plateau before the
+        slip to the one after along a ramp over the time the slip covers its length in
+        (``RunData.drop_moving``, from the arcs at the mode sequence's last decision; 0
+        before they were integrated). Without blur a frame reads
+        the level on its side of the slip; with it, the share of its window on each side.
+        Where the steps fall is the step phase estimated from the frames, moved by
+        ``clock_shift`` (per run, ``clock_shift@run``): a blurred exposure moves that
+        estimate, and a shift of the clock is the same as a shift of the window
+        (``exposure_align``), so only one of the two can be free.
+        """
+        x_um = w[self.i_x : self.i_x + self.P]
+        pre = self.ev_prev[self.dr_ev]
+        x_pre = x_um[pre.tolist()] * LENGTH_UNIT
+        x_post = x_um[(pre + 1).tolist()] * LENGTH_UNIT
+        T = P["exposure"] if self._blurred() else 0.0
+        a = P["exposure_align"]
+        Te = ca.fmax(T, 1e-9)  # (guards the division in the branch not taken)
+        D = ca.DM(np.maximum(self.dr_moving, 1e-9))
+        # the steps (and the slip) δ later than the estimated step phase puts them
+        if "clock_shift" in self.scoped_bases:
+            shift = self.per_run_column(P, "clock_shift", self.dr_run)
+        else:
+            shift = P["clock_shift"]
+        dt = ca.DM(self.dr_dt) - shift
+        u = ca.DM(self.dr_phase) - shift * ca.DM(self.dr_fp)
+
+        def ramp_integral(tau):  # ∫ clip(τ'/D, 0, 1) dτ' from −∞ to τ
+            y = ca.fmin(ca.fmax(tau, 0), D)
+            return y * y / (2 * D) + ca.fmax(tau - D, 0)
+
+        # (at T = 0 the instant itself: a frame at the trigger step reads the block before it moves)
+        share_after = ca.if_else(T > 0, (ramp_integral(dt + (1 - a) * Te) - ramp_integral(dt - a * Te)) / Te,
+                                 ca.fmin(ca.fmax(dt / D, 0), 1))
+        n_avg = ca.DM(self.dr_steps) + staircase_blur(u, T * ca.DM(self.dr_fp), a)
+        model_e = step * n_avg - (x_pre + (x_post - x_pre) * share_after)
+        if self.n_off:
+            model_e = model_e + w[(self.i_off + self.dr_run).tolist()] * LENGTH_UNIT
+        model_e = model_e + self._drift_at(P, self.dr_run, self.dr_t)
+        return (ca.DM(self.dr_e) - model_e) / ca.DM(self.dr_sigma)
 
     # ---------------------------------------------------------------- symbolic NLP
     def _symbolic(self, w, Y):
@@ -124,6 +192,8 @@ class NLPExpressions:
             mu = self.law.static_coefficient(zss, Pr, ops=ca) + P["A"] * ca.log(1 + vp / P["vc"])
             f = self.model.spring_force(r.steady_mean_e, Pr, ops=ca)
             res.append((f - mu * self.model.normal_load(Pr)) / (r.k * r.steady_se))
+        if self.D:
+            res.append(self._drop_residuals(w, P, step))
         for n, sd in self.prior_sd().items():
             res.append(P[n] / sd)  # a zero-mean Gaussian prior (FitOptions.priors), last
         return A, ca.vertcat(*res), g

@@ -61,6 +61,13 @@ class FitOptions:
         θ/σ; the χ² the fit reports includes them, and
         :meth:`identify.fitting.problem.Problem.penalised_counts` separates them and
         counts the free dimensions as the penalty implies.
+    drop_frames : bool
+        Observe the frames around each slip one by one instead of leaving them out of
+        the plateaus (:func:`identify.fitting.rundata.drop_frames`): a frame whose
+        exposure straddles a slip reads a level between the plateaus, which only a
+        blurred exposure (``exposure``, placed by ``exposure_align``) explains. The
+        motion-blur candidate of the diagnosis fits this way, against its null refitted
+        on the same frames.
     free_offset : bool
         Estimate a per-run elongation zero offset.
     use_creep_runs : bool
@@ -182,6 +189,7 @@ class FitOptions:
     bounds: Mapping[str, tuple] = field(default_factory=dict)
     start: Mapping[str, float] = field(default_factory=dict)
     priors: Mapping[str, float] = field(default_factory=dict)
+    drop_frames: bool = False
     free_offset: bool = False
     use_creep_runs: bool = True
     max_arc_steps: int = 64

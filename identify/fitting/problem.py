@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 from collections.abc import Mapping, Sequence
 
 import casadi as ca
@@ -73,7 +74,7 @@ from identify.model.symbolic import LENGTH_UNIT, Model
 
 __all__ = ["Problem", "ThetaMap", "MEASUREMENT"]
 
-MEASUREMENT = ("drift_rate", "exposure")
+MEASUREMENT = ("drift_rate", "exposure", "exposure_align", "clock_shift")
 """Camera-side parameters the residuals model (the zero offset is ``free_offset``)."""
 
 log = logging.getLogger(__name__)
@@ -141,10 +142,18 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
         idx = {id(r): i for i, r in enumerate(self.runs)}
         pl = dict(run=[], n=[], e=[], s=[], x0=[], t=[])
         ev = dict(run=[], prev=[], step=[], first=[], gap=[])
+        dr = {k: [] for k in ("run", "ev", "e", "t", "steps", "phase", "dt", "moving")}
         p0 = 0
         for r in ev_runs:
             ri = idx[id(r)]
             Pr, Er = len(r.plateau_n), len(r.trigger_steps)
+            if r.drops and r.drop_e is not None and r.drop_e.size:
+                e0 = len(ev["run"])  # the run's first slip, globally
+                dr["run"].append(np.full(r.drop_e.size, ri))
+                dr["ev"].append(e0 + r.drop_slip)
+                for k, v in (("e", r.drop_e), ("t", r.drop_t), ("steps", r.drop_steps), ("phase", r.drop_phase),
+                             ("dt", r.drop_dt), ("moving", r.drop_moving)):
+                    dr[k].append(np.asarray(v, float))
             pl["run"] += [ri] * Pr
             pl["n"].append(r.plateau_n)
             pl["e"].append(r.plateau_mean_e)
@@ -173,6 +182,14 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
         self.ev_Nb = np.array([rr[i].Nb for i in self.ev_run])
         self.ev_fp = np.array([rr[i].fp for i in self.ev_run])
         self.pl_sigma = np.array([rr[i].sigma for i in self.pl_run])
+        # frames around the slips, each an observation (RunData.drops)
+        self.dr_run = cat(dr["run"]).astype(int)
+        self.dr_ev = cat(dr["ev"]).astype(int)
+        self.dr_e, self.dr_t, self.dr_steps, self.dr_phase, self.dr_dt, self.dr_moving = (
+            cat(dr[k]) for k in ("e", "t", "steps", "phase", "dt", "moving"))
+        self.dr_sigma = np.array([rr[i].sigma for i in self.dr_run])
+        self.dr_fp = np.array([rr[i].fp for i in self.dr_run])
+        self.D = int(self.dr_run.size)
         self.ev_next = np.nonzero(~self.ev_first)[0]  # slips with a predecessor in their run
         self.n_trig = len(self.ev_next)
         self.ev_firsts = np.nonzero(self.ev_first)[0]  # each run's first slip
@@ -505,6 +522,20 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
             out.setdefault(int(self.ev_run[e]), []).append(Y[2, e] * 1e-3)
         return {k: np.array(v) for k, v in out.items()}
 
+    def slip_ramps(self, w: np.ndarray) -> dict:
+        """Per run, the time over which each slip covers its length (s): a half sine of
+        its peak speed covers it in (π/2)·slip/peak, which ignores the slow approach to
+        the stop speed the moving time includes (measured: 2 ms of moving time for slips
+        done in ~0.1 ms on a 20.3 N/m spring, which a ramp over the moving time misreads
+        in the frames around the slips)."""
+        Y = self.arc_outputs(w)
+        out: dict = {}
+        for e in range(self.E):
+            slip, stop, peak = Y[0, e] * 1e-6, Y[2, e] * 1e-3, Y[3, e]
+            d = 0.5 * math.pi * abs(slip) / peak if peak > 0 else stop
+            out.setdefault(int(self.ev_run[e]), []).append(min(d, stop))
+        return {k: np.array(v) for k, v in out.items()}
+
     # ---------------------------------------------------------------- statistics
     def chi2_constant(self) -> float:
         """χ² of the frames that the compressed residuals leave out (within plateaus)."""
@@ -515,7 +546,7 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
         (with the interval encoding the triggers are bounds, not observations)."""
         per_slip = 0 if self.interval_triggers else 1
         return int(sum(r.plateau_n.sum() + per_slip * len(r.trigger_steps) if r.kind == "events" else 1
-                       for r in self.runs))
+                       for r in self.runs)) + self.D
 
     def dof(self) -> int:
         """Degrees of freedom of the χ²: observations less free dimensions (at least 1)."""
@@ -530,7 +561,8 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
         return self.n_theta + self.n_off + per_run * sum(1 for r in self.runs if r.kind == "events") + first_starts
 
     def residual_groups(self) -> dict:
-        """Index ranges of the residual vector: plateaus, slopes, triggers, creep, priors."""
+        """Index ranges of the residual vector: plateaus, slopes, triggers, creep, the
+        frames around the slips (``drops``, with ``FitOptions.drop_frames``), priors."""
         n_slope = sum(1 for r in self.runs if r.kind == "events" and r.s_nn > 0)
         p = self.P
         t0 = p + n_slope
@@ -538,8 +570,9 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
         t1 = t0 if self.interval_triggers else \
             t0 + self.n_trig + (self.n_phase if self.E else 0) + (len(self.ev_firsts) if self.n_s else 0)
         t2 = t1 + len(self.creep_runs)
+        t3 = t2 + self.D
         return dict(plateaus=(0, p), slopes=(p, t0), triggers=(t0, t1),
-                    creep=(t1, t2), priors=(t2, t2 + len(self.prior_sd())))
+                    creep=(t1, t2), drops=(t2, t3), priors=(t3, t3 + len(self.prior_sd())))
 
     def prior_sd(self) -> dict:
         """The priors' standard deviations (SI) of the free parameters that have one

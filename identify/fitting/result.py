@@ -344,7 +344,7 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
         aic=chi2 + 2 * k, bic=chi2 + k * math.log(max(n_obs, 1)), cost=float(best["f"]),
         law=prob.law.name, coating=coating, n_runs=len(prob.runs), n_events=prob.E,
         n_observations=n_obs,
-        nlp_size=dict(variables=prob.n_w, constraints=prob.n_g, residuals=int(len(r))),
+        nlp_size=dict(variables=prob.n_w, constraints=prob.n_g, residuals=int(len(r)), drop_frames=int(prob.D)),
         solver=solver_record(prob, best, wall_s, gap),
         multistart=dict(starts=len(results), best_found=found, costs=[float(x["f"]) for x in results]),
         runs=runs,

@@ -30,7 +30,10 @@ def _statistics(result) -> list:
         f"    model              = hybrid stick/slip, {result.law} aging law",
         f"    coating            = {result.coating} (fixed parameters from its preset)",
         f"    runs used          = {result.n_runs} ({result.n_events} slips)",
-        f"    observations       = {result.n_observations} (plateau frames, triggers, creep means)"
+        f"    observations       = {result.n_observations} (plateau frames, "
+        + (f"{result.nlp_size['drop_frames']} frames around the slips one by one, "
+           if result.nlp_size.get("drop_frames") else "")
+        + "triggers, creep means)"
         + (f"; {s['observations_detected']} in the detected sequence: the mode sequence the fit decided "
            f"changed which frames count (those taken while the block moved at a moved, inserted or "
            f"removed slip)" if s.get("observations_detected", result.n_observations) != result.n_observations

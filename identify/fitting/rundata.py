@@ -14,7 +14,7 @@ import numpy as np
 
 from identify.model.scopes import device_label
 
-__all__ = ["RunData", "SIGMA_FLOOR", "steps_between_triggers"]
+__all__ = ["RunData", "SIGMA_FLOOR", "drop_frames", "make_run_data", "steps_between_triggers"]
 
 SIGMA_FLOOR = 1e-12 / math.sqrt(12)  # m: rounding of the trace format's 6 decimals in µm
 
@@ -42,6 +42,15 @@ class RunData:
     s_nn: float = 0.0  # pooled within-plateau Σ(n − n̄)²
     slope_hat: float = 0.0  # pooled within-plateau staircase slope, m/step
     s_res: float = 0.0  # pooled within-plateau residual sum of squares, m²
+    # frames around the slips as observations of their own (make_run_data's ``drops``)
+    drops: bool = False
+    drop_e: np.ndarray | None = None  # m
+    drop_t: np.ndarray | None = None  # s
+    drop_steps: np.ndarray | None = None  # n(t), steps taken by the frame's timestamp
+    drop_phase: np.ndarray | None = None  # step phase u of the frame (fraction of the step interval)
+    drop_slip: np.ndarray | None = None  # which of the run's slips (index into trigger_steps)
+    drop_dt: np.ndarray | None = None  # s: timestamp less the slip's trigger step time
+    drop_moving: np.ndarray | None = None  # s: the time the slip covers its length in (0: not known)
     # per slip
     trigger_steps: np.ndarray | None = None
     # creep runs
@@ -112,12 +121,61 @@ def steps_between_triggers(ev, v_stick: float) -> bool:
     return bool(v_stick > 0 and ev.regime == "unresolved" and plateaus_move(ev))
 
 
+def _levels(pof: np.ndarray, e: np.ndarray, steps: np.ndarray, dx: float, P: int) -> np.ndarray:
+    """Data estimate of each plateau's block position, Δx·n̄ − ē over its frames (m); a
+    plateau without frames takes its predecessor's (nothing moved the block that the
+    frames saw)."""
+    use = pof >= 0
+    n = np.bincount(pof[use], minlength=P).astype(float)
+    mean_e = np.bincount(pof[use], weights=e[use], minlength=P) / np.maximum(n, 1)
+    mean_s = np.bincount(pof[use], weights=steps[use], minlength=P) / np.maximum(n, 1)
+    level = dx * mean_s - mean_e
+    for i in np.flatnonzero(n == 0):
+        level[i] = level[i - 1] if i > 0 else 0.0
+    return level
+
+
+def _per_slip(values, slip: np.ndarray) -> np.ndarray:
+    return np.zeros(slip.size) if values is None else np.asarray(values, float)[slip]
+
+
+def drop_frames(ev, triggers: np.ndarray, moving_s: np.ndarray | None = None) -> tuple:
+    """The frames a blurred exposure can carry a slip into, as observations of their own:
+    those within one step period of a trigger step (an exposure up to a step period long
+    reaches the slip from no further), less those while the block moves (from the
+    trigger step for ``moving_s`` seconds, where the slip's own path, not the window,
+    decides what they read) and those within reach of two slips.
+
+    Returns (frame indices, their slip's index in ``triggers``)."""
+    tr = ev.trace
+    t = np.asarray(tr.time_s, float)
+    trig = np.asarray(triggers, float)
+    if not trig.size:
+        return np.zeros(0, int), np.zeros(0, int)
+    fp = tr.step_frequency
+    t_s = (trig + ev.step_phase) / fp
+    # slip i reaches the frames with t_s − 1/fp ≤ t < t_s + 1/fp
+    lo = np.searchsorted(t_s, t - 1 / fp, side="right")
+    hi = np.searchsorted(t_s, t + 1 / fp, side="right")
+    slip = np.minimum(lo, len(t_s) - 1)
+    use = hi - lo == 1
+    if moving_s is not None:
+        d = t - t_s[slip]
+        use &= ~((d >= 0) & (d < np.asarray(moving_s, float)[slip]))
+    idx = np.flatnonzero(use)
+    return idx, slip[idx].astype(int)
+
+
 def make_run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray | None = None,
-              v_stick: float = 0.0) -> RunData:
+                  v_stick: float = 0.0, drops: bool = False, ramp_s: np.ndarray | None = None) -> RunData:
     """The run for the NLP: its plateaus for the mode sequence ``triggers`` (default: the
     detected one), or its steady level where it has no resolvable slips — or, under the
     stick option ``v_stick`` > 0, where it steps between its triggers
-    (:func:`steps_between_triggers`)."""
+    (:func:`steps_between_triggers`). With ``drops``, the frames around each slip
+    (:func:`drop_frames`) leave the plateaus and become observations of their own, so
+    that a blurred exposure straddling a slip can be seen (``FitOptions.drop_frames``);
+    ``ramp_s``: the time each slip covers its length in (default its moving time), the
+    path those frames' model takes for it."""
     tr = ev.trace
     # noiseless files still carry the print precision (1e-6 µm): uniform rounding error
     sigma = max(float(ev.noise_m), SIGMA_FLOOR)
@@ -137,6 +195,19 @@ def make_run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray |
     steps = ev.steps.astype(float)
     e = tr.elongation
     P = len(triggers) + 1
+    drop = {}
+    level0 = _levels(pof, e, steps, tr.step_size, P)  # (the data's block positions, before any frame leaves)
+    if drops:
+        # (frames in the slow approach to the stop speed, within nanometres of the end, count)
+        idx, slip = drop_frames(ev, triggers, ramp_s if ramp_s is not None else moving_s)
+        pof = pof.copy()
+        pof[idx] = -1
+        t_all = np.asarray(tr.time_s, float)
+        t_s = (np.asarray(triggers, float)[slip] + ev.step_phase) / tr.step_frequency
+        drop = dict(drops=True, drop_e=np.asarray(e, float)[idx], drop_t=t_all[idx], drop_steps=steps[idx],
+                    drop_phase=np.mod(t_all[idx] * tr.step_frequency - ev.step_phase, 1.0), drop_slip=slip,
+                    drop_dt=t_all[idx] - t_s,
+                    drop_moving=_per_slip(ramp_s if ramp_s is not None else moving_s, slip))
     use = pof >= 0
     n = np.bincount(pof[use], minlength=P).astype(float)
     sum_e = np.bincount(pof[use], weights=e[use], minlength=P)
@@ -147,7 +218,6 @@ def make_run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray |
     s_nn, s_en, s_ee = float(ds @ ds), float(de @ ds), float(de @ de)
     slope = s_en / s_nn if s_nn > 0 else tr.step_size
     s_res = s_ee - (s_en**2 / s_nn if s_nn > 0 else 0.0)
-    level0 = tr.step_size * mean_s - mean_e  # data estimate of each plateau's block position
     t = np.asarray(tr.time_s, float)
     mean_t = np.bincount(pof[use], weights=t[use], minlength=P) / np.maximum(n, 1)
     u = np.round(np.mod(t[use] * tr.step_frequency - ev.step_phase, 1.0), 6) % 1.0
@@ -158,7 +228,7 @@ def make_run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray |
         kind="events", plateau_n=n, plateau_mean_e=mean_e, plateau_mean_steps=mean_s,
         plateau_level0=level0, plateau_mean_t=mean_t, frame_phases=phases, phase_counts=counts, s_nn=s_nn,
         slope_hat=slope,
-        s_res=max(s_res, 0.0), trigger_steps=np.asarray(triggers, int), **base,
+        s_res=max(s_res, 0.0), trigger_steps=np.asarray(triggers, int), **drop, **base,
     )
 
 

@@ -24,6 +24,8 @@ __all__ = [
     "SPECS",
     "TOPO_MODES",
     "topo_field_names",
+    "EXPOSURE_ALIGNMENTS",
+    "exposure_align",
     "CONDITION_SPECS",
     "PARAMETER_SETS",
     "EPS_AIR",
@@ -184,7 +186,30 @@ _MEASUREMENT = [
     _s("exposure", "s", 0.0, 0.0, 1.0, 1e-3, kind="measurement",
        description="exposure time: each frame averages e over it (motion blur)",
        display_unit="ms", display_factor=1e3),
+    _s("clock_shift", "s", 0.0, -1.0, 1.0, 1e-4, kind="measurement",
+       description="how much later the puller's steps fall than the step phase estimated from the "
+       "frames says (a blurred exposure moves that estimate)", display_unit="ms", display_factor=1e3),
+    _s("exposure_align", "-", 0.5, 0.0, 1.0, 0.5, kind="measurement",
+       description="share of the exposure before the frame's timestamp: 0 starts at it, 0.5 centred "
+       "on it, 1 ends at it (EXPOSURE_ALIGNMENTS)"),
 ]
+
+EXPOSURE_ALIGNMENTS = {"start": 0.0, "centre": 0.5, "center": 0.5, "end": 1.0}
+"""Where the exposure window sits on a frame's timestamp, by name, as ``exposure_align``."""
+
+
+def exposure_align(value) -> float:
+    """``exposure_align`` from a name of :data:`EXPOSURE_ALIGNMENTS` or a share in [0, 1]."""
+    if isinstance(value, str):
+        key = value.strip().lower()
+        if key not in EXPOSURE_ALIGNMENTS:
+            raise ParameterError(f"exposure alignment {value!r}: must be one of start, centre, end "
+                                 "(or a share of the exposure before the timestamp, 0 to 1)")
+        return EXPOSURE_ALIGNMENTS[key]
+    a = float(value)
+    if not (0.0 <= a <= 1.0):
+        raise ParameterError(f"exposure_align = {value!r}: must lie in [0, 1] (0 start, 0.5 centre, 1 end)")
+    return a
 
 def topo_field_names() -> tuple:
     """The rough track's coefficients, mode by mode: topo_c1, topo_s1, topo_c2, ..."""

@@ -52,7 +52,8 @@ QUICK_CONDITIONS = tuple((k, nb, fp, min(tr, 15.0)) for k, nb, fp, tr in CONDITI
 def withheld_dataset(effect: str | Sequence[str] | None, magnitude: float | Sequence | None = None, *,
                      coating: str = "FOTAS", seed: int = 0, noise_nm: float = 90.0,
                      conditions: Sequence = CONDITIONS, base: dict | None = None,
-                     drift_walk_nm_per_sqrt_s: float = 0.0) -> list:
+                     drift_walk_nm_per_sqrt_s: float = 0.0, frames_per_step: float = 2.0,
+                     exposure_align: float | str = "centre") -> list:
     """Traces of ``conditions`` simulated with ``effect`` on (seeded noise per run).
 
     Parameters
@@ -68,6 +69,12 @@ def withheld_dataset(effect: str | Sequence[str] | None, magnitude: float | Sequ
     drift_walk_nm_per_sqrt_s : float
         A random walk of each run's camera zero besides (nm/√s; a thermal wander no
         candidate models).
+    frames_per_step : float
+        The camera's frame rate over the step frequency: 2 puts the frames at a quarter
+        and three quarters of each step interval; a rate not locked to the steps (5.3)
+        puts frames at every phase, some just after the step at which a slip happens.
+    exposure_align : str or float
+        Where a blurred exposure sits on the timestamp ("start", "centre", "end").
 
     A per-run or per-device effect (``drift_per_run``, ``spring_constant_per_device``,
     ``load_offset_per_device``) takes its values run by run from
@@ -77,7 +84,7 @@ def withheld_dataset(effect: str | Sequence[str] | None, magnitude: float | Sequ
     from identify.simulation.hybrid import simulate
 
     truth = dict(parameter_set(coating))
-    truth.update(v_stick=STICK)
+    truth.update(v_stick=STICK, exposure_align=exposure_align)
     truth.update(base or {})
     law = "exponential"
     load_err = np.ones(len(conditions))
@@ -106,11 +113,13 @@ def withheld_dataset(effect: str | Sequence[str] | None, magnitude: float | Sequ
     traces = []
     for i, (k, nb, fp, travel) in enumerate(conditions):
         params = {**truth, **per_run[i]}
-        camera = {n: params.pop(n) for n in ("exposure", "drift_rate", "e_offset") if n in params}
+        camera = {n: params.pop(n) for n in ("exposure", "exposure_align", "drift_rate", "e_offset") if n in params}
         run = simulate(coating, spring_constant_N_per_m=k, normal_load_uN=nb * load_err[i], step_frequency_Hz=fp,
                        travel_um=travel, law=law, params=params, stick_speed_m_per_s=params.get("v_stick"))
-        tr = run.sample(noise_nm=noise_nm, seed=1000 * seed + i, name=names[i],
-                        exposure_s=camera.get("exposure", 0.0), drift_rate_m_per_s=camera.get("drift_rate", 0.0),
+        tr = run.sample(noise_nm=noise_nm, seed=1000 * seed + i, name=names[i], frame_rate_Hz=frames_per_step * fp,
+                        exposure_s=camera.get("exposure", 0.0),
+                        exposure_align=camera.get("exposure_align", 0.5),
+                        drift_rate_m_per_s=camera.get("drift_rate", 0.0),
                         offset_m=camera.get("e_offset", 0.0),
                         drift_walk_m_per_sqrt_s=drift_walk_nm_per_sqrt_s * 1e-9)
         if ids == ["outside"]:

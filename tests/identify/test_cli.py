@@ -147,3 +147,27 @@ def test_the_demo_fits_the_bundled_data_with_the_fit_commands_defaults(tmp_path,
     js = strict_json(tmp_path / "demo" / "fit.json")
     assert js["solver"]["method"].startswith("Ipopt") and js["solver"]["success"]
     assert any((tmp_path / "demo" / "figures").glob("*.png"))
+
+
+def test_the_exposure_alignment_is_given_by_name_and_the_drop_frames_asked_for(capsys):
+    import argparse
+
+    import identify.cli as cli
+
+    def options(fix, drop=True):
+        ns = argparse.Namespace(free="mu_max,exposure", fix=fix, bound=None, start=None, law=None, free_offset=False,
+                                drop_frames=drop, multistart=0, seed=None, solver="ipopt", trigger="uniform",
+                                sequence_trials=None, sequence_passes=None, stick_speed="check")
+        return cli._fit_options(ns)
+
+    o = options(["exposure_align=end,v_stick=1e-5"])
+    assert o.fixed == {"exposure_align": 1.0, "v_stick": 1e-5} and o.drop_frames
+    assert options(["exposure_align=0.25"]).fixed == {"exposure_align": 0.25}
+    with pytest.raises(cli.CLIError, match="start, centre, end"):
+        options(["exposure_align=middle"])
+    with pytest.raises(cli.CLIError, match="is not a number"):
+        options(["tau=end"])
+    data = str(pathlib.Path(__file__).resolve().parents[2] / "data" / "FOTAS")
+    code = cli.main(["fit", data, "--fix", "exposure_align=sideways", "--json", "unused.json"])
+    err = capsys.readouterr().err
+    assert code == 2 and "exposure_align" in err and "Traceback" not in err

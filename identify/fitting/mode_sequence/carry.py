@@ -101,13 +101,15 @@ def with_triggers(prob, w, changes: dict, model, values, opts, say):
     """The NLP with the trigger steps of ``changes`` ({run index: steps}) and ``w``
     carried over to it (the frames taken while a block moved carried with their slips)."""
     moving = prob.moving_times(w)
+    ramps = prob.slip_ramps(w) if prob.D else {}
     new_runs = []
     for i, r in enumerate(prob.runs):
         if r.kind != "events":
             new_runs.append(r)
             continue
         steps = changes.get(i, r.trigger_steps)
-        new_runs.append(make_run_data(r.events, triggers=steps, moving_s=_carry(r.trigger_steps, moving.get(i), steps)))
+        new_runs.append(make_run_data(r.events, triggers=steps, moving_s=_carry(r.trigger_steps, moving.get(i), steps),
+                                      drops=r.drops, ramp_s=_carry(r.trigger_steps, ramps.get(i), steps)))
     new = Problem(new_runs, model, values, opts)
     new.ev_M = _carry_horizons(prob, new)
     new.counter = prob.counter  # the timing report covers every solve, not just the last
