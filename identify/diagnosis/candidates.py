@@ -264,7 +264,9 @@ def _refit_record(task: CandidateTask, prob, free: tuple, best: dict, ev, t0: fl
     r = ev[0]
     chi2, n_eff = prob.penalised_counts(r, w, ev)
     est = parameter_estimates(prob, w, ev)
-    info = confounding(prob, w, ev, task.extra if task.effect else ())
+    eff = get_effect(task.effect).named(task.extra) if task.effect else None
+    info = confounding(prob, w, ev, task.extra if task.effect else (),
+                       eff.defining if eff is not None and eff.nuisance else None)
     fitted = gap(feature_values(prob, w, r))
     heldout = _heldout_gap(task, prob, w, r, ev, (chi2, n_eff)) if task.folds else dict(gap_um=float("nan"))
     values = dict(task.values)

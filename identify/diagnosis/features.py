@@ -58,7 +58,7 @@ class Layout:
         creep_runs = [i for i, r in enumerate(prob.runs) if r.kind == "creep"]
         p0, p1 = grp["priors"]  # (shared: a prior belongs to no run)
         rows = np.r_[prob.pl_run, np.array(slope_runs, int), prob.trigger_runs(), np.array(creep_runs, int),
-                     np.full(p1 - p0, -1, int)]
+                     prob.dr_run, np.full(p1 - p0, -1, int)]
         var = np.full(prob.n_w, -1, int)
         if prob.n_off:
             var[prob.i_off : prob.i_off + prob.n_off] = np.arange(prob.n_off)

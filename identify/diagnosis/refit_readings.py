@@ -35,11 +35,13 @@ def parameter_estimates(prob, w, ev) -> dict:
             for i, (n, v, (se, _, ci)) in enumerate(zip(tm.names, tm.from_scaled(th), standard_errors(tm, th, C, 1.0)))}
 
 
-def confounding(prob, w, ev, extra: Sequence[str]) -> dict:
+def confounding(prob, w, ev, extra: Sequence[str], defining: Sequence[str] | None = None) -> dict:
     """How much of each candidate parameter the other free parameters can mimic.
 
     In the information metric (nuisances eliminated), R² of the candidate's direction
-    regressed on the others' (1: exactly absorbed), and the others it leans on most."""
+    regressed on the others' (1: exactly absorbed), and the others it leans on most;
+    for the ``defining`` ones of ``extra`` only, when given (a nuisance freed beside the
+    effect, as motion blur's clock shifts, is no evidence either way)."""
     names = prob.theta.names
     if not extra:
         return {}
@@ -53,7 +55,7 @@ def confounding(prob, w, ev, extra: Sequence[str]) -> dict:
                 for n in extra}
     out = {}
     for n in extra:
-        if n not in names:
+        if n not in names or (defining is not None and n not in defining):
             continue
         c = names.index(n)
         others = [i for i in range(len(names)) if names[i] not in extra]

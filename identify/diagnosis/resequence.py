@@ -81,7 +81,7 @@ def as_detected(runs):
     changed them (triggers moved, slips inserted or removed)."""
     from identify.fitting.rundata import make_run_data
 
-    det = [make_run_data(r.events) if r.kind == "events" else r for r in runs]
+    det = [make_run_data(r.events, drops=r.drops) if r.kind == "events" else r for r in runs]
     same = all(d is r or np.array_equal(d.trigger_steps, r.trigger_steps) for d, r in zip(det, runs))
     return None if same else det
 

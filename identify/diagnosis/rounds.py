@@ -48,6 +48,7 @@ import numpy as np
 
 from identify import interrupts
 from identify.diagnosis.candidates import run_candidate
+from identify.diagnosis.drop_observations import with_drop_observations
 from identify.diagnosis.heldout import folds_of
 from identify.diagnosis.record import DiagnosisRecord, RecordedExecutor, inputs_digest
 from identify.diagnosis.records import CandidateResult, Round
@@ -235,6 +236,10 @@ def _start_state(baseline, opts: DiagnosisOptions, executor, say) -> _State:
     from identify.model.params import parameter_set
 
     prob, w = baseline.problem, baseline.w
+    where_prob = prob
+    if "motion_blur" in opts.effects:
+        # (the same observations for the blur candidate, its null and every other refit)
+        prob, _ = with_drop_observations(prob, w)
     fopts = prob.opts
     runs = prob.runs
     folds = folds_of(len(runs), opts.folds, seed=opts.seed)
@@ -245,7 +250,7 @@ def _start_state(baseline, opts: DiagnosisOptions, executor, say) -> _State:
     if regime_runs:
         say(f"simulating the {len(regime_runs)} run(s) left out for their regime under the baseline")
     notes: list = []
-    where0 = with_regime(where(prob, w), regime_check_notes(prob.law.name, values0, regime_runs, notes))
+    where0 = with_regime(where(where_prob, w), regime_check_notes(prob.law.name, values0, regime_runs, notes))
     chi2_0, n_eff_0 = prob.penalised_counts(prob.residuals(w), w)
     current = dict(values=values0, free=tuple(prob.theta.names), law=prob.law.name,
                    w=w, ev_M=np.array(prob.ev_M), n_theta=prob.n_theta,

@@ -76,6 +76,7 @@ class Effect:
     scope: ClassVar[str | None] = None
     reference: ClassVar[bool] = False
     sets: ClassVar[tuple] = ()  # parameters it sets from the runs without fitting them (fixed_values)
+    nuisance: ClassVar[tuple] = ()  # bases of parameters freed beside it that do not define it
     labels: tuple = ()  # bound: the runs or devices with a parameter of their own
     reference_label: str | None = None  # bound: the device kept at the null
     n_labels: int | None = None  # bound: how many runs or devices the data have in this scope
@@ -93,8 +94,13 @@ class Effect:
     @property
     def defining(self) -> tuple:
         """The parameters whose null defines the baseline (for topography its amplitude:
-        wavelength and phase mean nothing at zero amplitude)."""
-        return self.parameters[:1] if self.id == "topography" else self.parameters
+        wavelength and phase mean nothing at zero amplitude; never a nuisance, as motion
+        blur's clock shifts, which mean nothing without a blur)."""
+        if self.id == "topography":
+            return self.parameters[:1]
+        from identify.model.scopes import parse
+
+        return tuple(n for n in self.parameters if parse(n)[0] not in self.nuisance)
 
     @property
     def description(self) -> str:
@@ -553,11 +559,17 @@ def _rng(seed: int, stream: int):
 
 
 class MotionBlur(Effect):
-    """Motion blur: each frame averages e over an exposure T centred on it; null T = 0.
+    """Motion blur: each frame averages e over an exposure T on its timestamp; null T = 0.
 
-    With frames placed symmetrically in the step interval the plateau means do not move
-    (:meth:`identify.fitting.problem.Problem._camera_terms`): the blur then lies only in frames taken
-    during slips, which the features leave out."""
+    A window straddling a slip reads a level between the plateaus: the frames around the
+    slips are observed one by one (``FitOptions.drop_frames``, which the diagnosis turns on
+    when this candidate is tried). Where the steps fall is estimated from the frames,
+    and a blurred exposure moves that estimate: bound to runs with such frames, the
+    candidate frees a clock shift per run besides T (``clock_shift@run:NAME``, within
+    half a step period), so the window is taken as centred (``exposure_align``): a shift
+    of the window on the timestamp is the same as a shift of the clock. With frames
+    placed symmetrically in the step interval and windows shorter than their distance
+    to the steps, the data cannot see the blur at all."""
 
     id = "motion_blur"
     parameters = ("exposure",)
@@ -565,6 +577,27 @@ class MotionBlur(Effect):
     bounds = {"exposure": (0.0, 1e-2)}
     touches = ("post_slip_level",)
     magnitude = ("exposure", 2e-3, "s")
+    nuisance = ("clock_shift",)
+
+    def bind(self, runs) -> Effect:
+        """This candidate with a clock shift for each run whose frames around its slips
+        are observed (:attr:`identify.fitting.rundata.RunData.drops`)."""
+        from identify.model.scopes import label, scoped
+
+        dropped = [r for r in (runs or ()) if getattr(r, "drops", False) and getattr(r, "kind", "") == "events"]
+        if not dropped:
+            return self
+        bound = copy.copy(self)
+        shifts = {scoped("clock_shift", "run", label(r.name)): 0.5 / r.fp for r in dropped}
+        bound.parameters = ("exposure", *shifts)
+        bound.null = {"exposure": 0.0, **{n: 0.0 for n in shifts}}
+        bound.bounds = {"exposure": (0.0, 1e-2), **{n: (-h, h) for n, h in shifts.items()}}
+        return bound
+
+    def named(self, parameters) -> Effect:
+        bound = copy.copy(self)
+        bound.parameters = tuple(parameters) or self.parameters
+        return bound
 
 
 class StickThreshold(Effect):

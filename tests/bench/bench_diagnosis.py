@@ -12,7 +12,8 @@ was reported confounded, the verdict and the held-out gap before/after.
 One JSON line per case is appended as soon as it is done (nothing is lost to a stop);
 the table is printed at the end. The detection limit of an effect is the smallest
 magnitude at which it is still named (or reported confounded). ``a+b``: both effects on
-in one data set (forward selection must name each).
+in one data set (forward selection must name each). ``id:variant``: the effect seen by
+another camera (``CAMERA``: ``motion_blur:end``, an exposure ending at the timestamp).
 
 ``speed``: one full diagnosis of the 8-run withheld-conditions set
 (identify.simulation.withheld.CONDITIONS) with all candidates and
@@ -51,6 +52,10 @@ PSEUDO = ("outside", "random_walk")  # withheld_dataset's effects outside the li
 # rows of two effects at once that the per-run and per-device candidates need: drift of
 # each run's own, with the camera's zero wandering besides; a load offset beside it
 COMBINED = ("drift_per_run+random_walk", "load_offset+drift_per_run")
+# camera variants of an effect, "id:variant": motion blur from an exposure that ends at the
+# timestamp, seen by a camera not locked to the steps (5.3 frames per step: frames at every
+# phase, some just after the step of a slip)
+CAMERA = {"motion_blur:end": dict(exposure_align="end", frames_per_step=5.3)}
 
 
 def _magnitude(eid, scale):
@@ -63,11 +68,13 @@ def _magnitude(eid, scale):
 def case(eid, scale, quick, workers, seed=0, progress=False):
     """One data set: ``eid`` an effect id, None, "outside", or ids joined by "+" (every one
     of them on at once, each at ``scale``; the baseline fixes what any of them needs)."""
+    camera = CAMERA.get(eid, {})
+    row_id, eid = eid, (eid.split(":")[0] if eid else eid)
     ids = eid.split("+") if eid and "+" in eid else None
     mag = [_magnitude(e, scale) for e in ids] if ids else _magnitude(eid, scale)
     conds = QUICK_CONDITIONS if quick else CONDITIONS
     base = {"A": 0.015}
-    traces = withheld_dataset(ids or eid, mag, seed=seed, conditions=conds, base=base)
+    traces = withheld_dataset(ids or eid, mag, seed=seed, conditions=conds, base=base, **camera)
     t0 = time.perf_counter()
     if ids:  # what any of them needs fixed is fixed; free what all of them leave free
         per = [_baseline_options(e) for e in ids]
@@ -87,7 +94,7 @@ def case(eid, scale, quick, workers, seed=0, progress=False):
                                             confounded_with=first.get(e, {}).get("confounded_with"),
                                             estimates=first.get(e, {}).get("estimates"))
                                     for e in ids}
-    return dict(effect=eid, scale=scale, magnitude=mag, verdict=res.verdict, named=res.effects, **extra,
+    return dict(effect=row_id, scale=scale, magnitude=mag, verdict=res.verdict, named=res.effects, **extra,
                 # a group confounded with the model's own parameters names them after its effects
                 confounded=[g["effects"] + list(g.get("confounded_with", [])) for g in res.confounded],
                 truth_confounded_with=truth.get("confounded_with"), truth_p=truth.get("p_value"),
@@ -122,11 +129,13 @@ def _stamped(msg):
 
 
 def confusion(args):
-    ids = args.effects.split(",") if args.effects else ["none", "outside"] + list(EFFECTS) + list(COMBINED)
+    ids = args.effects.split(",") if args.effects else (["none", "outside"] + list(EFFECTS) + list(COMBINED)
+                                                        + list(CAMERA))
     scales = [float(s) for s in args.scales.split(",")]
     out = Path(args.out)
     for eid in ids:
-        nested = eid != "none" and all(e not in PSEUDO and get_effect(e).nested for e in eid.split("+"))
+        nested = eid != "none" and all(e not in PSEUDO and get_effect(e.split(":")[0]).nested
+                                       for e in eid.split("+"))
         for sc in (scales if nested else [1.0]):
             try:
                 row = case(None if eid == "none" else eid, sc, args.quick, args.workers,
