@@ -7,9 +7,9 @@ too, and so does every other candidate it is compared with. The baseline's runs 
 rebuilt once, on the baseline's own mode sequence, with each slip's frames taken while
 its block moved (the arcs' moving times at the baseline) left out: there the slip's
 path, not the window, decides what a frame reads; a window reaching into the slip reads
-it as a ramp over the time the slip covers its length in (``Problem.slip_ramps``). The decision variables are the same,
-so the baseline's solution carries over; the current model's record of the first round
-is its refit on these observations.
+it as a ramp over the time the slip covers its length in (``Problem.slip_ramps``). The
+decision variables are the same, so the baseline's solution carries over; the current
+model's record of the first round is its refit on these observations.
 """
 
 from __future__ import annotations

@@ -31,7 +31,8 @@ def staircase_blur(u, H, a):
     averages over [u − a·H, u + (1 − a)·H] in step units, ``H`` = T·fp the exposure in
     step periods and ``a`` the share of it before the timestamp (``exposure_align``):
     the window's share past each later step m ≥ 1, less its share before each step
-    m ≤ 0 it starts before. Element-wise over ``u`` (and ``H``); 0 at H = 0.
+    m ≤ 0 it starts before. Element-wise over ``u`` (and ``H``); at H = 0 the steps
+    between the timestamp and the count's own, floor(u) (0 for a phase in [0, 1)).
     """
     Hs = H + 1e-30
     out = 0
@@ -84,8 +85,8 @@ class NLPExpressions:
         n(t) the puller's staircase and x(t) the block moving from its plateau before the
         slip to the one after along a ramp over the time the slip covers its length in
         (``RunData.drop_moving``, from the arcs at the mode sequence's last decision; 0
-        before they were integrated). Without blur a frame reads
-        the level on its side of the slip; with it, the share of its window on each side.
+        before they were integrated). Without blur a frame reads the level on its side of
+        the slip; with it, the share of its window on each side.
         Where the steps fall is the step phase estimated from the frames, moved by
         ``clock_shift`` (per run, ``clock_shift@run``): a blurred exposure moves that
         estimate, and a shift of the clock is the same as a shift of the window
