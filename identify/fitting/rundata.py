@@ -199,7 +199,8 @@ def make_run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray |
     level0 = _levels(pof, e, steps, tr.step_size, P)  # (the data's block positions, before any frame leaves)
     if drops:
         # (frames in the slow approach to the stop speed, within nanometres of the end, count)
-        idx, slip = drop_frames(ev, triggers, ramp_s if ramp_s is not None else moving_s)
+        ramp = ramp_s if ramp_s is not None else moving_s
+        idx, slip = drop_frames(ev, triggers, ramp)
         pof = pof.copy()
         pof[idx] = -1
         t_all = np.asarray(tr.time_s, float)
@@ -207,7 +208,7 @@ def make_run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray |
         drop = dict(drops=True, drop_e=np.asarray(e, float)[idx], drop_t=t_all[idx], drop_steps=steps[idx],
                     drop_phase=np.mod(t_all[idx] * tr.step_frequency - ev.step_phase, 1.0), drop_slip=slip,
                     drop_dt=t_all[idx] - t_s,
-                    drop_moving=_per_slip(ramp_s if ramp_s is not None else moving_s, slip))
+                    drop_moving=_per_slip(ramp, slip))
     use = pof >= 0
     n = np.bincount(pof[use], minlength=P).astype(float)
     sum_e = np.bincount(pof[use], weights=e[use], minlength=P)
