@@ -92,6 +92,16 @@ class Effect:
         return self.law is None
 
     @property
+    def global_twin(self) -> str | None:
+        """The global candidate this per-run or per-device one nests (all its values equal
+        give the global one back), or None. A per-device candidate with a reference does
+        not nest its global one: the reference stays at the null where the global value
+        moves every device."""
+        if self.scope is None or self.reference:
+            return None
+        return type(self).__mro__[1].id or None
+
+    @property
     def defining(self) -> tuple:
         """The parameters whose null defines the baseline (for topography its amplitude:
         wavelength and phase mean nothing at zero amplitude; never a nuisance, as motion

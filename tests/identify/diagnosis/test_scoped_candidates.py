@@ -87,3 +87,38 @@ def test_a_drift_per_run_without_its_signature_is_not_named():
     # a global candidate is not held to it
     assert _unsigned(CandidateResult(effect="drift", ok=True), flat) is None
     assert 0 < SIGNATURE_P < 0.05
+
+
+def _twin(effect, chi2, n_eff, nulls):
+    """A significant, converged candidate closing the gap, its residual change the same
+    as its twin's (they tie as a confounded group unless told apart)."""
+    return CandidateResult(effect=effect, ok=True, significant=True, status="Solve_Succeeded", chi2=chi2,
+                           n_eff=n_eff, delta_aic=-400.0 + 2 * n_eff, dr=np.ones(5), closes=True,
+                           nulls=nulls, estimates={n: dict(value=2e-6, stderr=1e-7) for n in nulls},
+                           estimate_text="offset", gap=dict(noise_um=0.02))
+
+
+@pytest.mark.parametrize("per_device_gain, named", [(3.0, "load_offset"), (40.0, "load_offset_per_device")])
+def test_a_global_candidate_and_its_per_device_twin_are_told_apart_by_their_own_ratio(per_device_gain, named):
+    """Two devices: the per-device offset has one more value than the global one. Its
+    values agree within noise (Δχ² 3 for one more: p = 0.08) → the global one is named;
+    apart (Δχ² 40, p = 3e-10, ΔBIC below 0 at 5000 rows) → the per-device one."""
+    from identify.diagnosis.selection import nested_twins, select_named
+
+    base = CandidateResult(effect=None, chi2=5400.0, n_obs=5000, n_eff=4)
+    g = _twin("load_offset", 5000.0, 5, {"load_offset": 0.0})
+    s = _twin("load_offset_per_device", 5000.0 - per_device_gain, 6,
+              {"load_offset@device:k2.13": 0.0, "load_offset@device:k20.3": 0.0})
+    assert get_effect("load_offset_per_device").global_twin == "load_offset"
+    assert get_effect("spring_constant_per_device").global_twin is None  # its reference: not nested
+    kept, out = nested_twins([g, s], base)
+    assert [c.effect for c in kept] == [named] and len(out) == 1
+    assert out[0].note.startswith("not named:") and "degrees of freedom" in out[0].note
+    chosen, group, scored = select_named([g, s], base)
+    assert group is None and chosen is not None and chosen.effect == named
+    left = next(c for c in scored if c.effect != named)
+    assert left.note.startswith("not named:")
+    # without the twin rule the two would tie: same residual change, ΔAIC within 10
+    from identify.diagnosis.selection import try_named
+
+    assert try_named(g, [s])[1] is not None
