@@ -97,7 +97,7 @@ def run_candidate(task: CandidateTask) -> CandidateResult:
         prob = candidate_problem(task, free)
         prob.give_up = give_up_rule(task, prob)
         best = _refit(task, prob, _scored_starts(prob, _starts(task, prob, free)))
-        if task.effect is not None and get_effect(task.effect).priors():
+        if task.effect is not None and get_effect(task.effect, task.runs).priors():
             prob, best = _roughness_rounds(task, prob, free, best)
         ev = prob.central_differences().evaluate(best["w"], jac=True)
         out = _refit_record(task, prob, free, best, ev, t0)
@@ -111,9 +111,10 @@ def run_candidate(task: CandidateTask) -> CandidateResult:
 
 
 ROUGHNESS_ROUNDS = 3
-"""Refits a rough track's prior scale is updated over at most (MacKay's evidence update,
-:func:`identify.model.effects.roughness_update`), each from the last one's end; it stops
-once the scale moves by less than :data:`ROUGHNESS_RTOL`."""
+"""Refits a candidate's prior scale (a rough track's roughness, a random walk's intensity)
+is updated over at most (MacKay's evidence update,
+:meth:`identify.model.effects.Effect.prior_scale_update`), each from the last one's end;
+it stops once the scale moves by less than :data:`ROUGHNESS_RTOL`."""
 ROUGHNESS_RTOL = 0.25
 
 
@@ -121,9 +122,7 @@ def _roughness_rounds(task: CandidateTask, prob, free: tuple, best: dict):
     """The refit with its priors' scale chosen by the data: the scale updated from the
     coefficients and their effective degrees of freedom, and the refit solved again from
     its end, until the scale settles. Returns the problem and end of the last refit."""
-    from identify.model.effects import roughness_update
-
-    eff = get_effect(task.effect)
+    eff = get_effect(task.effect, task.runs)
     own = [n for n in prob.prior_sd() if n in eff.parameters]
     rho = eff.roughness
     for _ in range(ROUGHNESS_ROUNDS):
@@ -132,7 +131,7 @@ def _roughness_rounds(task: CandidateTask, prob, free: tuple, best: dict):
         n_pen = len(prob.prior_sd())
         edf = prob.penalised_counts(ev[0], w, ev)[1] - (prob.n_effective() - n_pen)
         values = dict(zip(prob.theta.names, prob.theta.from_scaled(w[: prob.n_theta])))
-        new = roughness_update({n: values[n] for n in own}, edf * len(own) / max(n_pen, 1))
+        new = eff.prior_scale_update({n: values[n] for n in own}, edf * len(own) / max(n_pen, 1))
         if abs(math.log(new / rho)) < math.log(1 + ROUGHNESS_RTOL):
             break
         rho = new

@@ -13,7 +13,7 @@ import numpy as np
 
 from identify.fitting.arc_callback import ArcCallback, blockdiag_sparsity
 from identify.fitting.mode_sequence.triggers import START_SCALE_UM
-from identify.model.params import topo_field_names
+from identify.model.params import topo_field_names, walk_names
 from identify.model.scopes import parse
 from identify.model.symbolic import LENGTH_UNIT
 
@@ -48,13 +48,38 @@ class NLPExpressions:
     def _blurred(self) -> bool:
         return "exposure" in self.theta.names or self.values.get("exposure", 0.0) != 0.0
 
+    def _walk_modes(self) -> list:
+        """The random walk's modes in play: (m, name) of those free or not zero."""
+        return [(m, n) for m, n in enumerate(walk_names(), start=1)
+                if n in self.scoped_bases or n in self.theta.names or self.values.get(n, 0.0) != 0.0]
+
     def _drift_at(self, P, runs: np.ndarray, t: np.ndarray):
-        """The camera's drift at times ``t`` (s) of rows of ``runs`` (m; 0 without one)."""
+        """The camera's drift at times ``t`` (s) of rows of ``runs`` (m; 0 without one):
+        the rate's line, and the random walk of its zero as the series
+        Σₘ walk_m·√2·sin((m − ½)π·t/T) over the run's span T (a Wiener process's
+        Karhunen–Loève modes; :class:`identify.model.effects.DriftWalk`)."""
         if "drift_rate" in self.scoped_bases:  # a rate per run
-            return self.per_run_column(P, "drift_rate", runs) * ca.DM(t)
-        if "drift_rate" in self.theta.names or self.values.get("drift_rate", 0.0) != 0.0:
-            return P["drift_rate"] * ca.DM(t)
-        return ca.DM.zeros(len(t), 1)
+            out = self.per_run_column(P, "drift_rate", runs) * ca.DM(t)
+        elif "drift_rate" in self.theta.names or self.values.get("drift_rate", 0.0) != 0.0:
+            out = P["drift_rate"] * ca.DM(t)
+        else:
+            out = ca.DM.zeros(len(t), 1)
+        modes = self._walk_modes()
+        if modes:
+            s = np.asarray(t, float) / self.run_span[np.asarray(runs, int)]
+            for m, n in modes:
+                out = out + self.per_run_column(P, n, runs) * ca.DM(math.sqrt(2) * np.sin((m - 0.5) * math.pi * s))
+        return out
+
+    def _walk_slope(self, P) -> list:
+        """Per run, the random walk's mean slope over the run (m/s): its value at the run's
+        end over the span (it starts at 0), what it adds to the within-plateau slope."""
+        modes = self._walk_modes()
+        out = [0.0] * len(self.runs)
+        for m, n in modes:
+            end = math.sqrt(2) * (-1) ** (m + 1)  # √2·sin((m − ½)π)
+            out = [o + v * end / span for o, v, span in zip(out, self.per_run(P, n), self.run_span)]
+        return out
 
     def _camera_terms(self, P, step):
         """What the camera adds to each plateau's mean elongation (m).
@@ -137,10 +162,11 @@ class NLPExpressions:
             model_e = model_e + self._camera_terms(P, step)
             res.append(ca.sqrt(ca.DM(self.pl_n)) * (ca.DM(self.pl_mean_e) - model_e) / ca.DM(self.pl_sigma))
         drift = self.per_run(P, "drift_rate")
+        walk = self._walk_slope(P)
         for ri, r in enumerate(self.runs):
             if r.kind == "events" and r.s_nn > 0:
                 # a drift adds drift/fp per step to the staircase slope
-                res.append(math.sqrt(r.s_nn) * (step + drift[ri] / r.fp - r.slope_hat) / r.sigma)
+                res.append(math.sqrt(r.s_nn) * (step + (drift[ri] + walk[ri]) / r.fp - r.slope_hat) / r.sigma)
         A, g = None, ca.MX(0, 1)
         if E:
             x_prev = x_um[self.ev_prev] * LENGTH_UNIT

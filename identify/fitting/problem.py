@@ -68,13 +68,13 @@ from identify.fitting.ipopt import IpoptSolver
 from identify.fitting.mode_sequence.triggers import TriggerRefinement, below_top
 from identify.fitting.nlp_expressions import NLPExpressions
 from identify.fitting.theta_map import ThetaMap as ThetaMap
-from identify.model.params import SPECS
+from identify.model.params import SPECS, walk_names
 from identify.model.scopes import device_of, is_scoped, parse, run_scope_value
 from identify.model.symbolic import LENGTH_UNIT, Model
 
 __all__ = ["Problem", "ThetaMap", "MEASUREMENT"]
 
-MEASUREMENT = ("drift_rate", "exposure", "exposure_align", "clock_shift")
+MEASUREMENT = ("drift_rate", "exposure", "exposure_align", "clock_shift") + walk_names()
 """Camera-side parameters the residuals model (the zero offset is ``free_offset``)."""
 
 log = logging.getLogger(__name__)
@@ -182,6 +182,8 @@ class Problem(GaussNewtonSQP, IpoptSolver, Covariance, TriggerRefinement, NLPExp
         self.ev_Nb = np.array([rr[i].Nb for i in self.ev_run])
         self.ev_fp = np.array([rr[i].fp for i in self.ev_run])
         self.pl_sigma = np.array([rr[i].sigma for i in self.pl_run])
+        # each run's span, the random walk's series is over (1 s where a run has no frames' time)
+        self.run_span = np.array([r.span_s if np.isfinite(r.span_s) and r.span_s > 0 else 1.0 for r in rr])
         # frames around the slips, each an observation (RunData.drops)
         self.dr_run = cat(dr["run"]).astype(int)
         self.dr_ev = cat(dr["ev"]).astype(int)

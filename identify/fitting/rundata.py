@@ -58,6 +58,7 @@ class RunData:
     steady_se: float = float("nan")
     events: Any = None
     device: str = ""  # the trace's device, else its nominal spring constant (identify.model.scopes)
+    span_s: float = float("nan")  # the last frame's time, s (the camera's random walk is a series over it)
 
     def stick_edge(self, values: dict) -> str | None:
         """Why this run sits on the stick threshold's knife edge, or None.
@@ -181,7 +182,8 @@ def make_run_data(ev, triggers: np.ndarray | None = None, moving_s: np.ndarray |
     sigma = max(float(ev.noise_m), SIGMA_FLOOR)
     base = dict(name=tr.name, k=tr.spring_constant, Nb=tr.normal_load, fp=tr.step_frequency,
                 step_nominal=tr.step_size, sigma=sigma, n_frames=len(tr.time_s), events=ev,
-                device=device_label(tr.device, tr.spring_constant))
+                device=device_label(tr.device, tr.spring_constant),
+                span_s=float(np.max(tr.time_s)) if len(tr.time_s) else float("nan"))
     if (ev.regime != "stick-slip" and not _resolved_slips(ev)) or steps_between_triggers(ev, v_stick):
         # steady part: the second half of the run (after any loading transient)
         e = tr.elongation[len(tr.elongation) // 2:]

@@ -21,7 +21,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from identify.model.params import TOPO_MODES, spec, topo_field_names
+from identify.model.params import TOPO_MODES, spec, topo_field_names, walk_names
 
 __all__ = ["Effect", "EFFECTS", "get_effect", "effect_ids"]
 
@@ -34,6 +34,11 @@ ROUGHNESS_FLOOR = 1e-4
 """Below this prior scale the field is flat for any data (μ to 1e-4: a few nm of slip)."""
 TRACK_LENGTH_FACTOR = 1.25
 MIN_TRACK_LENGTH = 5e-6
+WALK_START = 1e-8
+"""The camera's random walk's first intensity σ_w (m/√s; :class:`DriftWalk`): half the
+withheld sets' 20 nm/√s, a wander of tens of nm over a run of seconds."""
+WALK_FLOOR = 1e-11
+"""Below this intensity the walk is nothing any run can show (0.1 nm over 100 s)."""
 
 
 class Effect:
@@ -197,8 +202,15 @@ class Effect:
 
     def priors(self, roughness: float | None = None) -> dict:
         """Standard deviations of zero-mean Gaussian priors on the candidate's parameters
-        (:attr:`identify.fitting.options.FitOptions.priors`); {}: none."""
+        (:attr:`identify.fitting.options.FitOptions.priors`) at the prior scale
+        ``roughness`` (default the candidate's first); {}: none."""
         return {}
+
+    def prior_scale_update(self, values: Mapping[str, float], edf: float) -> float:
+        """The prior scale the evidence gives for these values of the candidate's penalised
+        parameters and their effective degrees of freedom ``edf`` (MacKay's update); only
+        for a candidate with :meth:`priors`."""
+        raise NotImplementedError(f"{self.id} has no prior to update")
 
     def confounded_reason(self) -> str | None:
         """Why a bound per-device candidate has nothing to free (one device only), or None."""
@@ -463,6 +475,9 @@ class TopographyField(Effect):
         rho = float(self.roughness if roughness is None else roughness)
         return {n: rho / int(n[6:]) for n in self.parameters}
 
+    def prior_scale_update(self, values, edf):
+        return roughness_update(values, edf)
+
     def simulation_values(self, magnitude=None, values=None):
         """A rough track of rms ``magnitude`` (over its period) on a period of 50 µm: one
         fixed draw of the prior's 1/j spectrum, on a period the fit's own L (set by the
@@ -508,6 +523,54 @@ class DriftPerRun(Drift):
         m = float(self.magnitude[1] if magnitude is None else magnitude)
         rng = _rng(seed, 1)
         return [{"drift_rate": m * (-1) ** i * rng.uniform(0.5, 1.5)} for i in range(len(runs))]
+
+
+class DriftWalk(DriftPerRun):
+    """Drift at each run's own rate with a random walk of the camera's zero besides:
+    e_meas = e + r_i·t + W_i(t) in run i; null r_i = 0 and W_i = 0.
+
+    A camera's zero that wanders as well as creeps. W_i is a Wiener process of intensity
+    σ_w (m/√s), written as its Karhunen–Loève series over the run's span T_i,
+    Σₘ c_im·√2·sin((m − ½)π·t/T_i) (:data:`identify.model.params.WALK_MODES` modes), whose
+    coefficients are independent with standard deviation σ_w·√T_i/((m − ½)π): that is
+    their prior, and σ_w is set by the evidence as a rough track's roughness is
+    (:meth:`prior_scale_update`). The likelihood-ratio test and the information criteria
+    count the effective degrees of freedom the prior leaves, and a rate's interval carries
+    the trend the walk gives its run."""
+
+    id = "drift_walk"
+    parameters = ("drift_rate",) + walk_names()
+    null = {n: 0.0 for n in ("drift_rate",) + walk_names()}
+    bounds = {"drift_rate": (-1e-5, 1e-5), **{n: (-1e-5, 1e-5) for n in walk_names()}}
+    roughness: float = WALK_START  # σ_w, m/√s
+    spans: Mapping[str, float] | None = None  # bound: each run's span T_i, s
+
+    def bind(self, runs) -> Effect:
+        """One rate and one walk per run fitted by its frames, with the runs' spans."""
+        bound = super().bind(runs)
+        if bound is self:
+            return self
+        from identify.model.scopes import label
+
+        bound.spans = {label(r.name): float(r.span_s) for r in runs
+                       if label(r.name) in bound.labels and math.isfinite(getattr(r, "span_s", math.nan))}
+        return bound
+
+    def _modes(self):
+        """(scoped name, m, T_i) of every walk coefficient of the bound runs."""
+        from identify.model.scopes import scoped
+
+        return [(scoped(n, "run", lab), m, T) for lab, T in (self.spans or {}).items()
+                for m, n in enumerate(walk_names(), start=1)]
+
+    def priors(self, roughness: float | None = None) -> dict:
+        sw = float(self.roughness if roughness is None else roughness)
+        return {n: sw * math.sqrt(T) / ((m - 0.5) * math.pi) for n, m, T in self._modes()}
+
+    def prior_scale_update(self, values, edf):
+        """σ_w² = Σ c_im²·((m − ½)π)²/T_i over the effective degrees of freedom."""
+        ss = sum(float(values.get(n, 0.0)) ** 2 * ((m - 0.5) * math.pi) ** 2 / T for n, m, T in self._modes())
+        return max(math.sqrt(ss / max(edf, 0.5)), WALK_FLOOR)
 
 
 class SpringConstantPerDevice(SpringConstant):

@@ -24,6 +24,8 @@ __all__ = [
     "SPECS",
     "TOPO_MODES",
     "topo_field_names",
+    "WALK_MODES",
+    "walk_names",
     "EXPOSURE_ALIGNMENTS",
     "exposure_align",
     "CONDITION_SPECS",
@@ -177,6 +179,12 @@ _EFFECTS = [
       for j in range(1, TOPO_MODES + 1) for part in ("c", "s")),
 ]
 
+WALK_MODES = 6
+"""Modes of a run's random walk of the camera's zero (:class:`identify.model.effects.DriftWalk`):
+the Karhunen–Loève series of a Wiener process on the run, √2·sin((m − ½)π·t/T); the sixth
+mode's prior variance is 1/121 of the first's, so the ones left out hold ~3 % of the walk's
+variance."""
+
 # Measurement-side parameters (they change what the camera reports, not the motion).
 _MEASUREMENT = [
     _s("e_offset", "m", 0.0, -1e-4, 1e-4, 1e-7, kind="measurement",
@@ -192,7 +200,12 @@ _MEASUREMENT = [
     _s("exposure_align", "-", 0.5, 0.0, 1.0, 0.5, kind="measurement",
        description="share of the exposure before the frame's timestamp: 0 starts at it, 0.5 centred "
        "on it, 1 ends at it (EXPOSURE_ALIGNMENTS)"),
+    *(_s(f"walk_{m}", "m", 0.0, -1e-4, 1e-4, 1e-8, kind="measurement",
+         description=f"random walk of the camera's zero: coefficient of mode {m} of its series over the "
+         f"run, √2·sin(({m} − ½)π·t/T)", display_unit="nm", display_factor=1e9)
+      for m in range(1, WALK_MODES + 1)),
 ]
+
 
 EXPOSURE_ALIGNMENTS = {"start": 0.0, "centre": 0.5, "center": 0.5, "end": 1.0}
 """Where the exposure window sits on a frame's timestamp, by name, as ``exposure_align``."""
@@ -210,6 +223,11 @@ def exposure_align(value) -> float:
     if not (0.0 <= a <= 1.0):
         raise ParameterError(f"exposure_align = {value!r}: must lie in [0, 1] (0 start, 0.5 centre, 1 end)")
     return a
+
+def walk_names() -> tuple:
+    """A run's random-walk coefficients, mode by mode: walk_1, walk_2, ..."""
+    return tuple(f"walk_{m}" for m in range(1, WALK_MODES + 1))
+
 
 def topo_field_names() -> tuple:
     """The rough track's coefficients, mode by mode: topo_c1, topo_s1, topo_c2, ..."""

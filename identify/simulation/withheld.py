@@ -8,7 +8,9 @@ which the baseline then fixes). ``effect=None`` gives the baseline model itself;
 ``effect="outside"`` an effect outside the library: every run's true normal load off its
 nominal value by its own random error (±15 %), which no single global parameter mimics.
 ``"random_walk"``, alone or beside library effects, is another: each run's camera zero
-wanders as a random walk (:data:`RANDOM_WALK_NM`; a thermal wander no candidate models).
+wanders as a random walk (:data:`RANDOM_WALK_NM`), a thermal wander that only the
+``drift_walk`` candidate models; ``drift_walk`` itself gives each run its own drift rate
+(as ``drift_per_run``) with that walk besides.
 """
 
 from __future__ import annotations
@@ -93,6 +95,8 @@ def withheld_dataset(effect: str | Sequence[str] | None, magnitude: float | Sequ
         mag = mags.pop(ids.index("random_walk"))
         ids.remove("random_walk")
         drift_walk_nm_per_sqrt_s += RANDOM_WALK_NM if mag is None else float(mag)
+    if "drift_walk" in ids:  # its rates as drift_per_run's, and the walk it is named for
+        drift_walk_nm_per_sqrt_s += RANDOM_WALK_NM
     if ids == ["outside"]:
         rng = np.random.default_rng(10_000 + seed)
         load_err = 1 + rng.uniform(-0.15, 0.15, len(conditions))
