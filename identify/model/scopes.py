@@ -20,12 +20,13 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 
-from identify.model.params import walk_names
-
 __all__ = ["SCOPABLE", "SCOPES", "scoped", "parse", "is_scoped", "label", "device_label", "resolve",
            "device_of", "run_scope_value"]
 
-SCOPABLE = ("drift_rate", "k_scale", "load_offset", "load_scale", "clock_shift") + walk_names()
+# (the walk's modes written out: identify.model.params reads this module, so it cannot be
+# read from here; a test checks they are params.walk_names())
+SCOPABLE = ("drift_rate", "k_scale", "load_offset", "load_scale", "clock_shift") + tuple(
+    f"walk_{m}" for m in range(1, 7))
 """Parameters that may carry a scope: what differs between a lab's runs (drift and the
 camera's random walk, the camera's clock against the puller's) or devices (spring
 calibration, adhesion, load calibration)."""

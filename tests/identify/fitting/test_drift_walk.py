@@ -107,6 +107,9 @@ def test_the_candidate_frees_a_rate_and_a_walk_per_run_with_the_wiener_priors():
     lo, hi = eff.bounds["walk_1@run:a"]
     assert lo < 0 < hi and (lo, hi) == eff.bounds["drift_rate@run:b"]
     assert eff.global_twin == "drift_per_run" and eff.scope == "run"
+    from identify.model.scopes import SCOPABLE
+
+    assert set(walk_names()) <= set(SCOPABLE)  # every mode may take a value per run
     # a Wiener process of intensity σ on [0, T]: mode m's coefficient has sd σ·√T/((m − ½)π)
     sd = eff.priors(2e-8)
     assert set(sd) == {f"{n}@run:{r}" for r in "ab" for n in walk_names()}
