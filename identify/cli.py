@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import sys
 import warnings
@@ -248,6 +249,14 @@ def _add_fit_arguments(p, json_required: bool):
                    help="fix a parameter at a value, SI (repeatable; e.g. --fix v_stick=1e-5)")
     p.add_argument("--bound", action="append", metavar="NAME=LO:HI", help="bounds of a free parameter")
     p.add_argument("--start", action="append", metavar="NAME=VALUE", help="start value of a free parameter")
+    p.add_argument("--prior", action="append", metavar="NAME=SD",
+                   help="a zero-mean Gaussian prior of standard deviation SD (SI) on a free parameter, whose size "
+                   "the data must then argue for (repeatable; NAME@run: every run's); the chi-square reported "
+                   "is the data's, the penalty apart")
+    p.add_argument("--walk-nm-per-sqrt-s", type=float, default=None, metavar="SIGMA",
+                   help="model a random walk of the camera's zero in each run, of intensity SIGMA nm/√s: frees "
+                   "its six modes per run (walk_1@run ... walk_6@run, unless some are named in --free) with "
+                   "the Wiener process's priors; pair it with drift_rate@run for each run's own drift")
     p.add_argument("--free-offset", action="store_true", help="estimate a per-run elongation zero offset")
     p.add_argument("--drop-frames", action="store_true",
                    help="observe the frames around each slip one by one: an exposure straddling a slip shows there "
@@ -308,11 +317,19 @@ def _parse_bounds(items) -> dict:
 
 def _fit_options(args):
     from identify.fitting.options import DEFAULT_FREE, FitOptions
+    from identify.model.params import walk_mode, walk_names
 
     free = tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else DEFAULT_FREE
     stick = _stick_mode(args)  # (first: a speed given there joins --fix)
+    walk = getattr(args, "walk_nm_per_sqrt_s", None)
+    if walk is not None and not (math.isfinite(walk) and walk > 0):
+        raise CLIError(f"--walk-nm-per-sqrt-s {walk:g}: a random walk's intensity must be > 0 nm/√s")
+    if walk is not None and not any(walk_mode(n) for n in free):
+        free += tuple(f"{n}@run" for n in walk_names())
     return FitOptions(law=args.law or "exponential", free=free, fixed=_parse_params(args.fix, "--fix"),
                       bounds=_parse_bounds(args.bound), start=_parse_params(args.start, "--start"),
+                      priors=_parse_params(getattr(args, "prior", None), "--prior"),
+                      walk_intensity=None if walk is None else walk * 1e-9,
                       free_offset=args.free_offset, drop_frames=getattr(args, "drop_frames", False),
                       multistart=args.multistart, seed=args.seed,
                       solver=args.solver, trigger=args.trigger, stick_speed=stick,

@@ -23,6 +23,7 @@ from identify.fitting.mode_sequence.decide import decide_sequence
 from identify.fitting.options import FitError, FitOptions
 from identify.fitting.problem import Problem
 from identify.fitting.rundata import RunData, make_run_data
+from identify.fitting.scoped_options import check_scopes, every_scope, scoped_defaults
 from identify.fitting.start_values import AUTO_SEED, spread_starts, start_values
 from identify.fitting.suspect import (
     SAME_SOLUTION_TOL,
@@ -34,7 +35,7 @@ from identify.fitting.suspect import (
 )
 from identify.model.laws import get_law
 from identify.model.params import parameter_set
-from identify.model.scopes import device_of, is_scoped, label, parse, resolve
+from identify.model.scopes import device_of, is_scoped, resolve
 from identify.model.symbolic import Model
 from identify.progress import Stage, reporter
 
@@ -259,16 +260,16 @@ def _fit(data, *, coating, options, true_values, progress):
         preset = parameter_set(coating, {n: v for n, v in opts.fixed.items()})
     left = _LeftOut(excluded, say)
     run_data, stepping = _runs_to_fit(runs_ev, preset, opts, left, say)
-    opts, final_opts = (_every_scope(o, run_data) for o in (opts, final_opts))
-    _check_scopes(opts, run_data, left)
-    preset = _scoped_defaults(preset, opts)
+    opts, final_opts = (every_scope(o, run_data) for o in (opts, final_opts))
+    check_scopes(opts, run_data, left.excluded)
+    preset = scoped_defaults(preset, opts)
     start, start_source = start_values(run_data, law, preset, opts)
     from identify.fitting.problem import MEASUREMENT
 
     values = {**model.defaults(preset), **{n: preset[n] for n in MEASUREMENT},
               **{n: v for n, v in preset.items() if is_scoped(n)}, **start}
     run_data = _creep_runs_checked(run_data, model, values, stepping, left)
-    _check_scopes(opts, run_data, left)  # (a run the creep check left out)
+    check_scopes(opts, run_data, left.excluded)  # (a run the creep check left out)
     prob = _problem(run_data, model, values, opts, left, say)
     n_obs = prob.n_observations()
     failed0 = prob.arcs.n_failed
@@ -338,68 +339,6 @@ class _LeftOut:
             self.regime_runs.append(RegimeRun.of(rd))
         except Exception as err:  # (odd metadata): the run is left out all the same
             self.say(f"warning: {rd.name}: cannot be checked against the model later: {err}")
-
-
-def _scoped_defaults(preset: dict, opts: FitOptions) -> dict:
-    """The preset with a value for every per-run or per-device parameter the options name
-    (:mod:`identify.model.scopes`): its base parameter's, unless fixed or started."""
-    out = dict(preset)
-    for name in (*opts.free, *opts.start):
-        if is_scoped(name) and name not in out:
-            out[name] = out[parse(name)[0]]
-    return out
-
-
-RATIO_ONLY = ("k_scale", "load_scale")
-
-
-def _every_scope(opts: FitOptions, run_data) -> FitOptions:
-    """The options with ``base@run`` and ``base@device`` (no label) in ``free`` and
-    ``bounds`` written out: one parameter per run fitted by its frames (a creeping run's
-    steady level shows no drift), or per device of the runs; for a factor (``k_scale``,
-    ``load_scale``: a common one is absorbed by the friction coefficients) every device but
-    the one with the most runs, as the diagnosis's candidates do."""
-    wide = [n for n in opts.free if is_scoped(n) and parse(n)[2] is None]
-    if not wide:
-        return opts
-    runs = [label(r.name) for r in run_data if r.kind == "events"]
-    devices = list(dict.fromkeys(device_of(r) for r in run_data))
-    out, bounds = [], dict(opts.bounds)
-    for n in opts.free:
-        base, scope, lab = parse(n) if is_scoped(n) else (n, None, None)
-        if scope is None or lab is not None:
-            out.append(n)
-            continue
-        labels = runs if scope == "run" else devices
-        if base in RATIO_ONLY and len(labels) > 1:
-            dev = [device_of(r) for r in run_data]
-            labels = [d for d in labels if d != max(sorted(labels), key=dev.count)]
-        names = [f"{base}@{scope}:{lab}" for lab in labels]
-        out += [m for m in names if m not in out]
-        if n in bounds:
-            b = bounds.pop(n)
-            bounds.update({m: b for m in names})
-    return opts.evolve(free=tuple(out), bounds=bounds)
-
-
-def _check_scopes(opts: FitOptions, run_data, left) -> None:
-    """A per-run or per-device parameter must name a run or device that is fitted."""
-    runs = {label(r.name): r for r in run_data}
-    devices = {device_of(r) for r in run_data}
-    gone = {label(n): why for n, why in left.excluded}
-    for name in (*opts.free, *opts.fixed):
-        if not is_scoped(name):
-            continue
-        base, scope, lab = parse(name)
-        known = runs if scope == "run" else devices
-        where = "free" if name in opts.free else "fixed"
-        if lab not in known:
-            why = f" (left out: {gone[lab]})" if lab in gone else ""
-            raise FitError(f"{where}: {name} names no {scope} of the fitted data{why}; the {scope}s are "
-                           f"{', '.join(sorted(known)) or 'none'}", left.excluded)
-        if scope == "run" and base == "drift_rate" and runs[lab].kind != "events":
-            raise FitError(f"{where}: {name} names a run fitted by its steady level, which a drift does not "
-                           "move (no resolvable slips)", left.excluded)
 
 
 def _runs_to_fit(runs_ev, preset, opts, left: _LeftOut, say) -> tuple[list, dict]:

@@ -10,13 +10,24 @@ from dataclasses import dataclass, field, fields, replace
 from identify.fitting.arcs import ARC_ABSTOL, ARC_RELTOL
 from identify.fitting.solver_options import SOLVER_FIELDS, GaussNewtonOptions, IpoptOptions, StopOptions
 from identify.model.laws import get_law
-from identify.model.params import spec
+from identify.model.params import spec, walk_names
 from identify.model.plausible import check_parameters
 from identify.model.scopes import is_scoped, parse
 from identify.model.symbolic import Model
 
 DEFAULT_FREE = ("mu_max", "mu_min", "tau", "A")
 SEQUENCE_PASSES = ("triggers", "missed", "batch", "ambiguous", "misfit")
+
+
+def _is_free(name: str, free: tuple) -> bool:
+    """Whether ``name`` is free: named in ``free``, or one run's or device's value of a
+    ``base@run`` or ``base@device`` there (written out for every run once the runs are known)."""
+    if name in free:
+        return True
+    if not is_scoped(name):
+        return False
+    base, scope, _ = parse(name)
+    return f"{base}@{scope}" in free
 
 
 class FitError(ValueError):
@@ -68,6 +79,15 @@ class FitOptions:
         blurred exposure (``exposure``, placed by ``exposure_align``) explains. The
         motion-blur candidate of the diagnosis fits this way, against its null refitted
         on the same frames.
+    walk_intensity : float or None
+        σ_w (m/√s) of a random walk of the camera's zero: each free walk coefficient of a
+        run (``walk_m@run:NAME``, or ``walk_m@run`` for every run; the series of
+        :class:`identify.model.effects.DriftWalk`) without a prior of its own in
+        ``priors`` gets the Wiener process's, sd σ_w·√T/((m − ½)π) with T the run's
+        span (:func:`identify.model.params.walk_prior_sd`). Without it free walk
+        coefficients are fitted unpenalised: six free shapes per run, which absorb what
+        they can of any misfit. ``identify fit --walk-nm-per-sqrt-s`` sets it and frees
+        the six modes of every run.
     free_offset : bool
         Estimate a per-run elongation zero offset.
     use_creep_runs : bool
@@ -189,6 +209,7 @@ class FitOptions:
     bounds: Mapping[str, tuple] = field(default_factory=dict)
     start: Mapping[str, float] = field(default_factory=dict)
     priors: Mapping[str, float] = field(default_factory=dict)
+    walk_intensity: float | None = None
     drop_frames: bool = False
     free_offset: bool = False
     use_creep_runs: bool = True
@@ -285,15 +306,23 @@ class FitOptions:
             check_parameters(self.fixed, "fixed ")
             check_parameters(self.start, "start ")
         for name, (lo, hi) in dict(self.bounds).items():
-            if name not in free:
+            if not _is_free(name, free):
                 raise ValueError(f"bounds: {name} is not free")
             if not lo < hi:
                 raise ValueError(f"bounds: {name} needs lower < upper, got ({lo}, {hi})")
         for name, sd in dict(self.priors).items():
-            if name not in free:
+            if not _is_free(name, free):
                 raise ValueError(f"priors: {name} is not free")
             if not (isinstance(sd, (int, float)) and math.isfinite(sd) and sd > 0):
                 raise ValueError(f"priors: {name} needs a standard deviation > 0, got {sd!r}")
+        if self.walk_intensity is not None:
+            sw = self.walk_intensity
+            if not (isinstance(sw, (int, float)) and math.isfinite(sw) and sw > 0):
+                raise ValueError(f"walk_intensity = {sw!r}: must be a random walk's intensity > 0, in m/√s")
+            shared = [n for n in free if n in walk_names()]
+            if shared:
+                raise ValueError(f"walk_intensity: {shared[0]} is free as one walk shared by every run; a "
+                                 f"camera's zero wanders in each run on its own: free {shared[0]}@run")
         for name in ("max_arc_steps", "max_iter", "threads"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: must be a positive integer")

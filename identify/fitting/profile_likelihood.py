@@ -55,7 +55,9 @@ def profile(result, name: str, n_points: int = 13, span: float = 4.0, progress=N
     # the points to solve: the grid, then up to REFINE_STEPS bisections per side; a side
     # that crosses early skips the rest of its grid, one that does not cross adds points
     stage = Stage(progress, f"profile of {name}", len(grid) - 1 + 2 * REFINE_STEPS)
-    walk = _Walk(prob, i, name, result.w, result.chi2, CHI2_95 * max(scale, 1.0), half, stage)
+    # (a profile walks the objective the fit minimised: with priors, their penalty too)
+    chi2_min = result.chi2 + (result.priors or {}).get("penalty_chi2", 0.0)
+    walk = _Walk(prob, i, name, result.w, chi2_min, CHI2_95 * max(scale, 1.0), half, stage)
     for direction in (+1, -1):
         side = grid[grid > walk.th0] if direction > 0 else grid[grid < walk.th0][::-1]
         walk.along_grid(side)

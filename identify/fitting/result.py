@@ -90,6 +90,9 @@ class FitResult:
     # runs left out for their regime (identify.fitting.regime_check.RegimeRun): the diagnosis
     # checks the fitted model against them
     regime_runs: list = field(repr=False, default_factory=list)
+    # parameters fitted with Gaussian priors (FitOptions.priors, walk_intensity): how many,
+    # their penalty (not in chi2) and the effective number of parameters they count as
+    priors: dict = field(default_factory=dict)
 
     # ---------------------------------------------------------------- access
     @property
@@ -156,6 +159,7 @@ class FitResult:
             n_observations=self.n_observations, nlp_size=self.nlp_size, solver=self.solver,
             multistart=self.multistart, runs=self.runs, timing=self.timing, start=self.start_source,
             profiles={n: p.to_json() for n, p in self.profiles.items()},
+            priors=self.priors,
             concerns=self.concerns,
             covariance=None if self.covariance is None else np.asarray(self.covariance).tolist(),
         )
@@ -179,6 +183,7 @@ class FitResult:
             solver=d.get("solver", {}), multistart=d.get("multistart", {}), runs=d.get("runs", []),
             timing=d.get("timing", {}), start_source=d.get("start", ""),
             profiles={n: Profile.from_json(p) for n, p in (d.get("profiles") or {}).items()},
+            priors=d.get("priors") or {},
         )
 
     def save(self, path) -> Path:
@@ -325,10 +330,9 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
     """Statistics, covariance, flags and the run table of a solved :class:`Problem`."""
     w = best["w"]
     r = prob.residuals(w)
-    chi2 = float(r @ r) + prob.chi2_constant()
     n_obs = prob.n_observations()
-    k = prob.n_effective()
-    dof = prob.dof()
+    chi2, k, priors = _penalised_statistics(prob, w, r)
+    dof = max(round(n_obs - k), 1) if priors else prob.dof()
     redchi = chi2 / dof
     C, scale = covariance_and_scale(prob, w, getattr(prob.opts, "covariance", "robust"), redchi)
     gap = solution_gap(prob, w) if not best.get("success", True) else None
@@ -349,5 +353,23 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
         multistart=dict(starts=len(results), best_found=found, costs=[float(x["f"]) for x in results]),
         runs=runs,
         timing=timing_record(prob, best, results, wall_s),
-        start_source=start_source, problem=prob, w=w,
+        start_source=start_source, problem=prob, w=w, priors=priors,
     )
+
+
+def _penalised_statistics(prob, w, r) -> tuple:
+    """(χ², free dimensions, the priors' record) of a solved problem. With priors the χ²
+    is the data's, their penalty apart, and the penalised parameters count by the
+    effective degrees of freedom the penalty leaves them
+    (:meth:`identify.fitting.problem.Problem.penalised_counts`), so that the reduced χ²,
+    AIC and BIC measure the data's fit, as without priors."""
+    sd = prob.prior_sd()
+    if not sd:
+        return float(r @ r) + prob.chi2_constant(), prob.n_effective(), {}
+    chi2, k = prob.penalised_counts(r, w)
+    p0, p1 = prob.residual_groups()["priors"]
+    walk = getattr(prob.opts, "walk_intensity", None)
+    return chi2, k, dict(
+        parameters=len(sd), penalty_chi2=float(r[p0:p1] @ r[p0:p1]),
+        effective_parameters=float(len(sd) - (prob.n_effective() - k)),
+        walk_intensity_m_per_sqrt_s=None if walk is None else float(walk))

@@ -26,21 +26,24 @@ UNDETERMINED_REL = 1.0  # relative standard error above which a value is not a n
 def free_estimates(prob, w, C, scale, best: dict, gap: dict | None, start: Mapping,
                    true_values: Mapping | None) -> dict:
     """The free parameters' estimates at ``w`` (value, standard error and 95 % interval
-    from the covariance ``C`` × ``scale``), each flagged where the data cannot fix it."""
+    from the covariance ``C`` × ``scale``), each flagged where the data cannot fix it (a
+    parameter with a prior is not flagged for a wide interval: near its prior's zero it
+    has the prior's spread, which is what the prior says, not a failure of the fit)."""
     tm = prob.theta
+    priored = set(prob.prior_sd())
     th = w[: prob.n_theta]
     vals = tm.from_scaled(th)
     params: dict = {}
     for i, (n, (se, _, ci)) in enumerate(zip(tm.names, standard_errors(tm, th, C, scale))):
         params[n] = ParameterEstimate(
             name=n, value=float(vals[i]), stderr=se, ci95=ci, free=True, unit=spec(n).unit,
-            init=float(start.get(n, np.nan)), flag=_flag(tm, th, i, se, vals[i], best, gap),
+            init=float(start.get(n, np.nan)), flag=_flag(tm, th, i, se, vals[i], best, gap, n in priored),
             true=float(true_values[n]) if true_values and n in true_values else None,
         )
     return params
 
 
-def _flag(tm, th, i: int, se, value, best: dict, gap: dict | None) -> str | None:
+def _flag(tm, th, i: int, se, value, best: dict, gap: dict | None, priored: bool = False) -> str | None:
     """Why free parameter i's value is not a number to use (at a bound, undetermined, or
     where an unconverged solve stopped), or None."""
     rng = tm.hi[i] - tm.lo[i]
@@ -48,7 +51,7 @@ def _flag(tm, th, i: int, se, value, best: dict, gap: dict | None) -> str | None
         return "at a bound: the data push it against its limit"
     if se is None or not np.isfinite(se):
         return "undetermined: no finite standard error (singular information)"
-    if value != 0 and abs(se / value) > UNDETERMINED_REL:
+    if value != 0 and abs(se / value) > UNDETERMINED_REL and not priored:
         return f"undetermined: standard error {100 * abs(se / value):.0f} % of the value"
     if not best.get("success", True):
         # the covariance of a point the solver did not finish at is not an interval:

@@ -46,6 +46,7 @@ def _statistics(result) -> list:
         f"    status             = {message(s['status'])}",
         *_solver_notes(s),
         f"    chi-square         = {result.chi2:.6g}",
+        *_prior_line(result.priors),
         f"    reduced chi-square = {result.redchi:.6g}  (dof = {result.dof})",
         f"    Akaike info crit   = {result.aic:.6g}",
         f"    Bayesian info crit = {result.bic:.6g}",
@@ -59,6 +60,17 @@ def _statistics(result) -> list:
                         False: "; NOT unique: another solution as good lies elsewhere (flagged below)"}
                      .get(ms.get("unique"), ""))
     return lines
+
+
+def _prior_line(priors: dict) -> list:
+    """What the priors did, where the fit had any: the chi-square above is the data's."""
+    if not priors:
+        return []
+    walk = priors.get("walk_intensity_m_per_sqrt_s")
+    why = (f"; the walk's modes at a Wiener process of {walk * 1e9:.4g} nm/√s" if walk else "")
+    return [f"    priors             = {priors['parameters']} parameter(s) with zero-mean Gaussian priors{why}: "
+            f"penalty {priors['penalty_chi2']:.4g} (not in the chi-square), counted as "
+            f"{priors['effective_parameters']:.3g} parameter(s) in dof, AIC and BIC"]
 
 
 def _solver_notes(s: dict) -> list:

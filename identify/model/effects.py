@@ -21,7 +21,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from identify.model.params import TOPO_MODES, spec, topo_field_names, walk_names
+from identify.model.params import TOPO_MODES, spec, topo_field_names, walk_names, walk_prior_sd
 
 __all__ = ["Effect", "EFFECTS", "get_effect", "effect_ids"]
 
@@ -565,7 +565,7 @@ class DriftWalk(DriftPerRun):
 
     def priors(self, roughness: float | None = None) -> dict:
         sw = float(self.roughness if roughness is None else roughness)
-        return {n: sw * math.sqrt(T) / ((m - 0.5) * math.pi) for n, m, T in self._modes()}
+        return {n: walk_prior_sd(sw, m, T) for n, m, T in self._modes()}
 
     def prior_scale_update(self, values, edf):
         """σ_w² = Σ c_im²·((m − ½)π)²/T_i over the effective degrees of freedom."""

@@ -26,6 +26,8 @@ __all__ = [
     "topo_field_names",
     "WALK_MODES",
     "walk_names",
+    "walk_mode",
+    "walk_prior_sd",
     "EXPOSURE_ALIGNMENTS",
     "exposure_align",
     "CONDITION_SPECS",
@@ -227,6 +229,19 @@ def exposure_align(value) -> float:
 def walk_names() -> tuple:
     """A run's random-walk coefficients, mode by mode: walk_1, walk_2, ..."""
     return tuple(f"walk_{m}" for m in range(1, WALK_MODES + 1))
+
+
+def walk_mode(name: str) -> int | None:
+    """The mode m of a walk coefficient (``walk_3`` or ``walk_3@run:r1`` -> 3), else None."""
+    base = name.partition("@")[0]
+    return int(base[5:]) if base in walk_names() else None
+
+
+def walk_prior_sd(intensity: float, mode: int, span_s: float) -> float:
+    """The standard deviation of mode ``mode``'s coefficient of a Wiener process of
+    ``intensity`` (m/√s) over a run of ``span_s`` seconds: σ_w·√T/((m − ½)π), the
+    Karhunen–Loève series' (the coefficients are independent with these spreads)."""
+    return float(intensity) * math.sqrt(float(span_s)) / ((mode - 0.5) * math.pi)
 
 
 def topo_field_names() -> tuple:
