@@ -31,6 +31,7 @@ from identify.diagnosis.magnitude_check import MAGNITUDE_MAX_ITER as MAGNITUDE_M
 from identify.diagnosis.magnitude_check import MAGNITUDE_MOVED_Z as MAGNITUDE_MOVED_Z
 from identify.diagnosis.magnitude_check import MAGNITUDE_WIDER as MAGNITUDE_WIDER
 from identify.diagnosis.magnitude_check import at_magnitude
+from identify.diagnosis.prior_scale import evidence_scale
 from identify.diagnosis.records import CandidateResult
 from identify.diagnosis.refit_readings import confounding, parameter_estimates, regime_of_left_out
 from identify.diagnosis.refit_screen import (
@@ -97,10 +98,11 @@ def run_candidate(task: CandidateTask) -> CandidateResult:
         prob = candidate_problem(task, free)
         prob.give_up = give_up_rule(task, prob)
         best = _refit(task, prob, _scored_starts(prob, _starts(task, prob, free)))
+        scale = None
         if task.effect is not None and get_effect(task.effect, task.runs).priors():
-            prob, best = _roughness_rounds(task, prob, free, best)
+            prob, best, scale = _roughness_rounds(task, prob, free, best)
         ev = prob.central_differences().evaluate(best["w"], jac=True)
-        out = _refit_record(task, prob, free, best, ev, t0)
+        out = _refit_record(task, prob, free, best, ev, t0).but(prior_scale=scale)
         if (task.magnitude and np.isfinite(out.chi2)
                 and not could_be_named(task, out.chi2, out.n_eff, prob.n_observations())):
             out = out.but(**_magnitude_check(task, prob, out, ev, t0))
@@ -112,26 +114,24 @@ def run_candidate(task: CandidateTask) -> CandidateResult:
 
 ROUGHNESS_ROUNDS = 3
 """Refits a candidate's prior scale (a rough track's roughness, a random walk's intensity)
-is updated over at most (MacKay's evidence update,
-:meth:`identify.model.effects.Effect.prior_scale_update`), each from the last one's end;
-it stops once the scale moves by less than :data:`ROUGHNESS_RTOL`."""
-ROUGHNESS_RTOL = 0.25
+is chosen over at most: each finds the scale the evidence gives on the last refit's
+linearisation (:func:`identify.diagnosis.prior_scale.evidence_scale`) and refits there
+from its end; it stops once the scale moves by less than :data:`ROUGHNESS_RTOL`."""
+ROUGHNESS_RTOL = 0.1
 
 
 def _roughness_rounds(task: CandidateTask, prob, free: tuple, best: dict):
-    """The refit with its priors' scale chosen by the data: the scale updated from the
-    coefficients and their effective degrees of freedom, and the refit solved again from
-    its end, until the scale settles. Returns the problem and end of the last refit."""
+    """The refit with its priors' scale chosen by the data (MacKay's evidence rule, to its
+    fixed point on the refit's linearisation), and the refit solved again from its end at
+    that scale, until the scale settles. Returns the problem and end of the last refit, and
+    the scale its priors have."""
     eff = get_effect(task.effect, task.runs)
     own = [n for n in prob.prior_sd() if n in eff.parameters]
-    rho = eff.roughness
+    rho = used = eff.roughness
     for _ in range(ROUGHNESS_ROUNDS):
         w = best["w"]
         ev = prob.central_differences().evaluate(w, jac=True)
-        n_pen = len(prob.prior_sd())
-        edf = prob.penalised_counts(ev[0], w, ev)[1] - (prob.n_effective() - n_pen)
-        values = dict(zip(prob.theta.names, prob.theta.from_scaled(w[: prob.n_theta])))
-        new = eff.prior_scale_update({n: values[n] for n in own}, edf * len(own) / max(n_pen, 1))
+        new = evidence_scale(prob, w, ev, eff, own, rho)
         if abs(math.log(new / rho)) < math.log(1 + ROUGHNESS_RTOL):
             break
         rho = new
@@ -144,8 +144,8 @@ def _roughness_rounds(task: CandidateTask, prob, free: tuple, best: dict):
         sol = solve_on(nxt, w, f0)
         if not np.isfinite(sol["f"]):
             break
-        prob, best = nxt, sol
-    return prob, best
+        prob, best, used = nxt, sol, rho
+    return prob, best, used
 
 
 def _starts(task: CandidateTask, prob, free: tuple) -> list:

@@ -56,6 +56,7 @@ class CandidateResult:
     n_eff: float | None = None  # free dimensions; a prior's parameters by their effective count
     free: list | None = None
     priors: dict | None = None  # the priors' standard deviations (a rough track's, as the data chose them)
+    prior_scale: float | None = None  # their scale as the evidence chose it (roughness, walk intensity)
     law: str | None = None
     values: dict | None = None
     estimates: dict | None = None

@@ -125,8 +125,10 @@ def _score_closing(c: CandidateResult, base: CandidateResult, eff, opts) -> Cand
     """The residual change, the estimates' text, and how much of the gap ``c`` closes
     (:func:`closes_gap`), the held-out gap read against the encoding's floor."""
     names = eff.parameters if eff.nested else (c.free or [])
-    c = c.but(dr=c.r - base.r, named=False,
-              estimate_text=", ".join(f"{n} = {estimate_text(c.estimates[n])}" for n in names if n in c.estimates))
+    text = ", ".join(f"{n} = {estimate_text(c.estimates[n])}" for n in names if n in c.estimates)
+    if c.prior_scale is not None:
+        text += f"; {eff.prior_scale_text(c.prior_scale)}, chosen by the evidence"
+    c = c.but(dr=c.r - base.r, named=False, estimate_text=text)
     c = c.but(closed_fraction=closed_fraction(c))
     # the held-out gap at the encoding's floor (as the verdict's tolerance reads it)
     noise = base.gap.get("noise_um", 0.0)

@@ -206,6 +206,10 @@ class Effect:
         ``roughness`` (default the candidate's first); {}: none."""
         return {}
 
+    def prior_scale_text(self, scale: float) -> str:
+        """The prior scale ``scale`` in words, with its unit."""
+        return f"prior scale {scale:.3g}"
+
     def prior_scale_update(self, values: Mapping[str, float], edf: float) -> float:
         """The prior scale the evidence gives for these values of the candidate's penalised
         parameters and their effective degrees of freedom ``edf`` (MacKay's update); only
@@ -471,6 +475,9 @@ class TopographyField(Effect):
     def fixed_values(self) -> dict:
         return {} if self.length is None else {"topo_length": float(self.length)}
 
+    def prior_scale_text(self, scale: float) -> str:
+        return f"roughness ρ = {scale:.3g} (friction; mode j's coefficients have sd ρ/j)"
+
     def priors(self, roughness: float | None = None) -> dict:
         rho = float(self.roughness if roughness is None else roughness)
         return {n: rho / int(n[6:]) for n in self.parameters}
@@ -562,6 +569,9 @@ class DriftWalk(DriftPerRun):
 
         return [(scoped(n, "run", lab), m, T) for lab, T in (self.spans or {}).items()
                 for m, n in enumerate(walk_names(), start=1)]
+
+    def prior_scale_text(self, scale: float) -> str:
+        return f"walk intensity σ_w = {scale * 1e9:.3g} nm/√s"
 
     def priors(self, roughness: float | None = None) -> dict:
         sw = float(self.roughness if roughness is None else roughness)
