@@ -5,6 +5,7 @@ and its bounds; turned into the fit's options (free, fixed, start, bounds).
     params["tau"].set(value=0.05, min=1e-3, max=1.0)    # start and bounds, SI
     params["v_stick"].set(value=1e-5, vary=False)      # the stick option, fixed
     result = identify.fit(["data/FOTAS"], params=params)
+    params.add("drift_rate", 0.0, prior=5e-8)           # free, with a zero-mean prior of sd 5e-8 m/s
 
 Values are SI, as everywhere inside the toolkit (the parameter table's units,
 :data:`identify.SPECS`); every value and bound is checked against the table when it is
@@ -13,6 +14,7 @@ set, with an error naming the parameter and the rule.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
@@ -25,20 +27,28 @@ __all__ = ["Parameter", "Parameters"]
 @dataclass
 class Parameter:
     """One parameter: ``value`` (SI; a start when it varies, the value when it does not),
-    ``vary``, and the bounds ``min``/``max`` of its search (default: the parameter
-    table's)."""
+    ``vary``, the bounds ``min``/``max`` of its search (default: the parameter
+    table's), and ``prior``: the standard deviation of a zero-mean Gaussian prior on it
+    while it varies (:attr:`identify.fitting.options.FitOptions.priors`), or None."""
 
     name: str
     value: float
     vary: bool = False
     min: float | None = None
     max: float | None = None
+    prior: float | None = None
     _set: bool = False  # (whether the user gave the value: only those enter the options)
 
     def set(self, value: float | None = None, vary: bool | None = None, min: float | None = None,
-            max: float | None = None) -> Parameter:
-        """Change what is given (lmfit's ``Parameter.set``); checked against the table."""
+            max: float | None = None, prior: float | None = None) -> Parameter:
+        """Change what is given (lmfit's ``Parameter.set``, and ``prior``); checked against
+        the table."""
         s = spec(self.name)
+        if prior is not None:
+            if not (isinstance(prior, (int, float)) and math.isfinite(prior) and prior > 0):
+                raise ParameterError(f"{self.name}: prior = {prior!r} must be a standard deviation > 0, "
+                                     f"in {s.unit}")
+            self.prior = float(prior)
         if value is not None:
             self.value = s.check(value, "")
             self._set = True
@@ -57,7 +67,8 @@ class Parameter:
         s = spec(self.name)
         bounds = f", bounds [{self.min if self.min is not None else s.lower:.4g}, " \
                  f"{self.max if self.max is not None else s.upper:.4g}]" if self.vary else ""
-        return f"{self.name} = {self.value:.6g} {s.unit} ({'varies' if self.vary else 'fixed'}{bounds})"
+        prior = f", prior sd {self.prior:.4g} {s.unit}" if self.vary and self.prior is not None else ""
+        return f"{self.name} = {self.value:.6g} {s.unit} ({'varies' if self.vary else 'fixed'}{bounds}{prior})"
 
 
 class Parameters(Mapping[str, Parameter]):
@@ -79,10 +90,10 @@ class Parameters(Mapping[str, Parameter]):
         return cls((Parameter(n, float(v), n in vary) for n, v in values.items()), coating=coating)
 
     def add(self, name: str, value: float, vary: bool = True, min: float | None = None,
-            max: float | None = None) -> Parameter:
+            max: float | None = None, prior: float | None = None) -> Parameter:
         """Add (or replace) a parameter, e.g. an effect's (``load_offset``)."""
         p = Parameter(name, spec(name).check(value, ""), False)
-        p.set(value=value, vary=vary, min=min, max=max)
+        p.set(value=value, vary=vary, min=min, max=max, prior=prior)
         self._items[name] = p
         return p
 
@@ -106,7 +117,7 @@ class Parameters(Mapping[str, Parameter]):
         """The fit's options these declare: ``free`` (those that vary), ``start`` (their
         values given by ``set`` or ``add``), ``bounds`` (theirs, where given, the table's
         otherwise) and ``fixed`` (the values given to those that do not vary; the rest keep
-        the coating's preset)."""
+        the coating's preset); ``priors`` where a varying one has a prior."""
         free = tuple(n for n, p in self._items.items() if p.vary)
         if not free:
             raise ParameterError("no parameter varies: set vary=True on at least one")
@@ -117,12 +128,14 @@ class Parameters(Mapping[str, Parameter]):
             p, s = self._items[n], spec(n)
             if p.min is not None or p.max is not None:
                 bounds[n] = (p.min if p.min is not None else s.lower, p.max if p.max is not None else s.upper)
-        return dict(free=free, start=start, fixed=fixed, bounds=bounds)
+        priors = {n: self._items[n].prior for n in free if self._items[n].prior is not None}
+        return dict(free=free, start=start, fixed=fixed, bounds=bounds, **({"priors": priors} if priors else {}))
 
 
 def merged_options(options, params: Mapping | None):
     """``options`` (a FitOptions or None) with what ``params`` declares: free, start,
-    fixed and bounds come from the parameters; the other options stay."""
+    fixed and bounds come from the parameters, and the priors where any parameter has
+    one; the other options stay."""
     from dataclasses import replace
 
     from identify.fitting.options import FitOptions

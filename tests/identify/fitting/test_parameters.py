@@ -64,3 +64,14 @@ def test_a_fit_takes_its_parameters_and_coating_from_them():
                                                                     threads=1, auto_starts=0), progress=False)
     assert list(a.parameters) == list(b.parameters) and a.chi2 == pytest.approx(b.chi2, rel=1e-9)
     assert a.parameters["v_stick"].value == 1e-5 and not a.parameters["v_stick"].free
+
+
+def test_a_prior_is_declared_on_a_parameter_and_reaches_the_options():
+    p = Parameters.preset("FOTAS")
+    p.add("drift_rate", 0.0, prior=5e-8)
+    p["tau"].set(prior=0.5)
+    assert p.options()["priors"] == {"tau": 0.5, "drift_rate": 5e-8}
+    assert "prior sd 5e-08 m/s" in str(p)
+    assert "priors" not in Parameters.preset("FOTAS").options()  # (a FitOptions' own priors then stay)
+    with pytest.raises(ParameterError, match="drift_rate: prior = -1 must be a standard deviation > 0, in m/s"):
+        p["drift_rate"].set(prior=-1)
