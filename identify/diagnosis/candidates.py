@@ -127,7 +127,7 @@ def _roughness_rounds(task: CandidateTask, prob, free: tuple, best: dict):
     the scale its priors have."""
     eff = get_effect(task.effect, task.runs)
     own = [n for n in prob.prior_sd() if n in eff.parameters]
-    rho = used = eff.roughness
+    rho = used = _prior_scale_of(prob, eff, own)
     for _ in range(ROUGHNESS_ROUNDS):
         w = best["w"]
         ev = prob.central_differences().evaluate(w, jac=True)
@@ -146,6 +146,15 @@ def _roughness_rounds(task: CandidateTask, prob, free: tuple, best: dict):
             break
         prob, best, used = nxt, sol, rho
     return prob, best, used
+
+
+def _prior_scale_of(prob, eff, own: list) -> float:
+    """The scale the priors of ``eff``'s parameters ``own`` have in ``prob``: its default,
+    or the one the evidence chose before (a candidate refitted beside a rival carries
+    its chosen priors). The priors are proportional to it."""
+    unit = eff.priors(1.0)
+    ratios = [prob.prior_sd()[n] / unit[n] for n in own if unit.get(n)]
+    return float(np.median(ratios)) if ratios else float(eff.roughness)
 
 
 def _starts(task: CandidateTask, prob, free: tuple) -> list:

@@ -29,7 +29,8 @@ CANDIDATE_KEYS = ("effect", "parameters", "delta_nll", "p_value", "delta_aic", "
                   "closes", "gap_sigma_before", "gap_sigma_after", "heldout_gap_sigma_before",
                   "heldout_gap_sigma_after", "heldout_by_fold", "heldout_set_aside", "at_floor",
                   "heldout_gap_ratio_before", "beside", "mimicked", "own_sequence", "wald_z", "undetermined",
-                  "at_magnitude", "regime", "regime_fixed", "regime_broken", "held_regime", "time_by_run")
+                  "at_magnitude", "regime", "regime_fixed", "regime_broken", "held_regime", "time_by_run",
+                  "prior_scale")
 """A candidate's fields in the diagnosis's JSON, in their order there."""
 
 

@@ -638,14 +638,16 @@ def _stick_by_likelihood(result, data, coating, final_opts, true_values, progres
         result.solver["stick_option"] += f"; with v_stick = {STICK_SPEED_AUTO:g} m/s the fit failed: {err}"
         _flag_stick_dependence(result)
         return result
+    # (with priors each fit's objective is its data's χ² and its penalty: compared whole)
+    obj, obj_other = (x.chi2 + (x.priors or {}).get("penalty_chi2", 0.0) for x in (result, other))
     written = f"as written (v_stick = 0) chi-square {result.chi2:.6g}"
     if result.concerns:
         written += f" ({'; '.join(result.concerns)})"
     option = f"with v_stick = {STICK_SPEED_AUTO:g} m/s {other.chi2:.6g}"
     if other.concerns:
         option += f" ({'; '.join(other.concerns)})"
-    decisive = abs(result.chi2 - other.chi2) > STICK_DECISIVE
-    if other.chi2 < result.chi2:
+    decisive = abs(obj - obj_other) > STICK_DECISIVE
+    if obj_other < obj:
         other.solver["stick_option"] = (f"v_stick = {STICK_SPEED_AUTO:g} m/s, chosen by the likelihood: {written}, "
                                         f"{option}")
         other.timing["total_s"] += result.timing["total_s"]

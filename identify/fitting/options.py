@@ -319,6 +319,9 @@ class FitOptions:
             sw = self.walk_intensity
             if not (isinstance(sw, (int, float)) and math.isfinite(sw) and sw > 0):
                 raise ValueError(f"walk_intensity = {sw!r}: must be a random walk's intensity > 0, in m/√s")
+            if sw > 1e-4:  # (100 µm/√s: a camera's zero wandering by the whole travel in a second)
+                raise ValueError(f"walk_intensity = {sw!r} m/√s: far beyond any camera's wander; it is in m/√s "
+                                 f"(20 nm/√s is 2e-8), did you give it in nm/√s?")
             shared = [n for n in free if n in walk_names()]
             if shared:
                 raise ValueError(f"walk_intensity: {shared[0]} is free as one walk shared by every run; a "

@@ -44,11 +44,8 @@ class Parameter:
         """Change what is given (lmfit's ``Parameter.set``, and ``prior``); checked against
         the table."""
         s = spec(self.name)
-        if prior is not None:
-            if not (isinstance(prior, (int, float)) and math.isfinite(prior) and prior > 0):
-                raise ParameterError(f"{self.name}: prior = {prior!r} must be a standard deviation > 0, "
-                                     f"in {s.unit}")
-            self.prior = float(prior)
+        if prior is not None and not (isinstance(prior, (int, float)) and math.isfinite(prior) and prior > 0):
+            raise ParameterError(f"{self.name}: prior = {prior!r} must be a standard deviation > 0, in {s.unit}")
         if value is not None:
             self.value = s.check(value, "")
             self._set = True
@@ -61,6 +58,8 @@ class Parameter:
         if lo is not None and hi is not None and not lo < hi:
             raise ParameterError(f"{self.name}: min = {lo:g} must be below max = {hi:g}")
         self.min, self.max = lo, hi
+        if prior is not None:
+            self.prior = float(prior)
         return self
 
     def __str__(self) -> str:

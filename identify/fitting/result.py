@@ -366,6 +366,7 @@ def _penalised_statistics(prob, w, r) -> tuple:
     sd = prob.prior_sd()
     if not sd:
         return float(r @ r) + prob.chi2_constant(), prob.n_effective(), {}
+    prob.central_differences()  # (the effective count reads the information, as the covariance does)
     chi2, k = prob.penalised_counts(r, w)
     p0, p1 = prob.residual_groups()["priors"]
     walk = getattr(prob.opts, "walk_intensity", None)

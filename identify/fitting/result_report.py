@@ -68,9 +68,13 @@ def _prior_line(priors: dict) -> list:
         return []
     walk = priors.get("walk_intensity_m_per_sqrt_s")
     why = (f"; the walk's modes at a Wiener process of {walk * 1e9:.4g} nm/√s" if walk else "")
+    def num(key, fmt):  # (a number saved as null, non-finite, reads as such)
+        v = priors.get(key)
+        return "n/a" if v is None else format(v, fmt)
+
     return [f"    priors             = {priors['parameters']} parameter(s) with zero-mean Gaussian priors{why}: "
-            f"penalty {priors['penalty_chi2']:.4g} (not in the chi-square), counted as "
-            f"{priors['effective_parameters']:.3g} parameter(s) in dof, AIC and BIC"]
+            f"penalty {num('penalty_chi2', '.4g')} (not in the chi-square), counted as "
+            f"{num('effective_parameters', '.3g')} parameter(s) in dof, AIC and BIC"]
 
 
 def _solver_notes(s: dict) -> list:

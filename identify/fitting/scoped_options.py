@@ -66,6 +66,9 @@ def _walk_priors(opts: FitOptions, run_data) -> FitOptions:
     none of its own, at ``opts.walk_intensity`` (unchanged where that is not set)."""
     if opts.walk_intensity is None:
         return opts
+    if not any(walk_mode(n) for n in opts.free):
+        raise FitError("walk_intensity: no walk coefficient is free, so there is no walk to put its prior on; "
+                       "free walk_1@run ... walk_6@run (identify fit's --walk-nm-per-sqrt-s does)")
     spans = {label(r.name): float(r.span_s) for r in run_data}
     priors = dict(opts.priors)
     for n in opts.free:

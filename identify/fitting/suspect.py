@@ -96,8 +96,11 @@ def flag_rivals(result, prob, best: dict, rivals: list) -> None:
 
 def chi2_dof(prob, res) -> tuple[float, int]:
     """A solve's frame-level χ² (½χ² doubled, the compressed plateaus' constant added) and
-    the fit's degrees of freedom."""
-    return 2 * res["f"] + prob.chi2_constant(), prob.dof()
+    the fit's degrees of freedom. A prior's rows are in that objective: under the prior
+    each is one more observation for its parameter (the penalised objective at its
+    minimum is χ² with the observations less the unpenalised parameters), so they count
+    in the degrees of freedom too."""
+    return 2 * res["f"] + prob.chi2_constant(), prob.dof() + len(prob.prior_sd())
 
 
 def improbable(prob, res) -> str:
@@ -106,9 +109,9 @@ def improbable(prob, res) -> str:
     freedom."""
     from scipy import stats
 
-    if not np.isfinite(res["f"]) or prob.dof() <= 0:
-        return ""
     chi2, dof = chi2_dof(prob, res)
+    if not np.isfinite(res["f"]) or dof <= 0:
+        return ""
     limit = float(stats.chi2.isf(SPREAD_P, dof))
     return f"chi-square {chi2:.6g} above the noise's {100 * (1 - SPREAD_P):g}th percentile {limit:.6g}" \
         if chi2 > limit else ""

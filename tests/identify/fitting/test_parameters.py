@@ -72,6 +72,11 @@ def test_a_prior_is_declared_on_a_parameter_and_reaches_the_options():
     p["tau"].set(prior=0.5)
     assert p.options()["priors"] == {"tau": 0.5, "drift_rate": 5e-8}
     assert "prior sd 5e-08 m/s" in str(p)
+    from identify.fitting.parameters import merged_options
+
+    assert merged_options(FitOptions(), p).priors == {"tau": 0.5, "drift_rate": 5e-8}
     assert "priors" not in Parameters.preset("FOTAS").options()  # (a FitOptions' own priors then stay)
+    kept = merged_options(FitOptions(free=("mu_max", "tau"), priors={"tau": 0.1}), Parameters.preset("FOTAS"))
+    assert kept.priors == {"tau": 0.1}
     with pytest.raises(ParameterError, match="drift_rate: prior = -1 must be a standard deviation > 0, in m/s"):
         p["drift_rate"].set(prior=-1)

@@ -58,6 +58,10 @@ def test_the_walk_intensity_refuses_what_has_no_meaning():
         FitOptions(free=FREE + ("walk_2",), walk_intensity=1e-8)
     with pytest.raises(FitError, match="walk_1@device:k2.13: a walk with walk_intensity is one run's"):
         every_scope(FitOptions(free=FREE + ("walk_1@device:k2.13",), walk_intensity=1e-8), _runs())
+    with pytest.raises(ValueError, match="did you give it in nm/√s"):
+        FitOptions(free=FREE + WALK, walk_intensity=20.0)
+    with pytest.raises(FitError, match="walk_intensity: no walk coefficient is free"):
+        every_scope(FitOptions(free=FREE + ("drift_rate@run",), walk_intensity=1e-8), _runs())
     with pytest.raises(ValueError, match="priors: tau is not free"):
         FitOptions(free=("mu_max",), priors={"tau": 0.01})
 
