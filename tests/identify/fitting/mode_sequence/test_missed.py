@@ -85,6 +85,9 @@ class _Stub:
     def dof(self):
         return 100
 
+    def prior_sd(self):
+        return {}
+
 
 @pytest.mark.parametrize("ends, solved, kept", [
     # the fresh solve fits (reduced χ² 1): the warm point is not solved
