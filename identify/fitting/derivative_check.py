@@ -43,6 +43,9 @@ REFERENCE_STEP = 1e-5  # relative step of the reference's central differences
 # an entry agrees when it is within this relative error of the reference, or this
 # absolute error in scaled units (per unit of the input's typical size)
 AGREE_REL, AGREE_ABS = 1e-5, 1e-9
+# arcs per CasADi call: a Ctrl-C is only seen between calls, and the reference's
+# differences over a data set's ~25 arcs at once took 5.5 s (measured)
+ARCS_PER_CALL = 6
 
 
 @dataclass
@@ -95,11 +98,25 @@ def _errors(J: np.ndarray, ref: np.ndarray, rows, typical: np.ndarray, mask: np.
                 agree=float(ok.mean()), n=int(mask.sum()))
 
 
+def _by_arcs(fn, *arrays):
+    """``fn`` over the arcs (columns of ``arrays``) a few at a time, the interrupt checked
+    between calls; its outputs' last axes joined back."""
+    n = arrays[0].shape[1]
+    parts = []
+    for s in range(0, n, ARCS_PER_CALL):
+        parts.append(fn(*(a[:, s:s + ARCS_PER_CALL] for a in arrays)))
+        interrupts.check()  # (a Ctrl-C inside CasADi's calls is only noted there)
+    return tuple(np.concatenate([p[k] for p in parts], axis=-1) for k in range(len(parts[0])))
+
+
 def _fd(arcs, A, rows, scheme, rel_step):
-    n = A.shape[1]
+    def one(a):
+        _, J = arcs.evaluate_jacobian(a, rows=list(rows), scheme=scheme, rel_step=rel_step)
+        return (J.reshape(2, a.shape[1], arcs.n_in).transpose(0, 2, 1),)
+
     t0 = time.perf_counter()
-    _, J = arcs.evaluate_jacobian(A, rows=list(rows), scheme=scheme, rel_step=rel_step)
-    return J.reshape(2, n, arcs.n_in).transpose(0, 2, 1), time.perf_counter() - t0
+    (J,) = _by_arcs(one, A)
+    return J, time.perf_counter() - t0
 
 
 def idas_differences(exact: ExactArcs, arcs, A: np.ndarray, rows, rel_step: float) -> np.ndarray:
@@ -113,8 +130,7 @@ def idas_differences(exact: ExactArcs, arcs, A: np.ndarray, rows, rel_step: floa
         for sgn in (1.0, -1.0):
             B = A.copy()
             B[i] += sgn * h
-            y, _, _ = exact.jacobian(B, arcs.evaluate(B), rows=(i,))
-            interrupts.check()  # (a Ctrl-C inside CasADi's calls is only noted there)
+            y, _, _ = _by_arcs(lambda b, r=(i,): exact.jacobian(b, arcs.evaluate(b), rows=r), B)
             out.append(y[:2])
         J[:, i, :] = (out[0] - out[1]) / (2 * h)
     return J
@@ -127,16 +143,12 @@ def compare(case: ArcCase, reltol: float = EXACT_RELTOL, self_check: bool = True
     exact = ExactArcs(model, arcs.input_names, reltol, (reltol,) * 3)
     exact.jacobian(A[:, :1], Y[:, :1], rows)  # (builds the Functions: not timed)
     t0 = time.perf_counter()
-    _, J_exact, ok = exact.jacobian(A, Y, rows)
+    _, J_exact, ok = _by_arcs(lambda a, y: exact.jacobian(a, y, rows), A, Y)
     t_exact = time.perf_counter() - t0
-    interrupts.check()  # (a Ctrl-C inside CasADi's calls is only noted there)
     J_fwd, t_fwd = _fd(arcs, A, rows, "forward", 1e-4)
-    interrupts.check()
     J_cen, t_cen = _fd(arcs, A, rows, "central", 1e-4)
-    interrupts.check()
     tight = arc_functions(model, REFERENCE_TOL, REFERENCE_TOL * 1e-2)
     J_ref, _ = _fd(tight, A, rows, "central", REFERENCE_STEP)
-    interrupts.check()
     flags = grazing_flags(model, A, Y, arcs.index)
     smooth = (flags == 0) & ok
     out = dict(case=case.name, arcs=int(A.shape[1]), exact_failed=int((~ok).sum()),
