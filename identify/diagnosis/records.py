@@ -203,8 +203,9 @@ class Round:
     @classmethod
     def from_json(cls, candidates: list, current: dict | None = None) -> Round:
         """A round from the JSON's ``rounds`` entry and ``current_model`` entry."""
-        return cls(current=None if current is None else CandidateResult.from_dict(current),
-                   candidates=tuple(CandidateResult.from_dict(c) for c in candidates))
+        cands = tuple(CandidateResult.from_dict(c) for c in candidates)
+        return cls(current=None if current is None else CandidateResult.from_dict(current), candidates=cands,
+                   chosen=next((c.effect for c in cands if c.named), None))
 
     @classmethod
     def of(cls, records, chosen: str | None = None) -> Round:

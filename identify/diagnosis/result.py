@@ -130,6 +130,9 @@ class DiagnosisResult(SavedResult):
     # a candidate held at its magnitude that makes the runs left out as the data's,
     # profiled on every run (identify.diagnosis.regime_profile; _profile_held)
     regime_profile: dict | None = None
+    # each named per-run or per-device effect tested again against its nested twin in the
+    # final model (identify.diagnosis.twins_final): named, twin, the test, the outcome
+    twins_final: list = field(default_factory=list)
     final_problem: Any = field(repr=False, default=None)
     final_w: Any = field(repr=False, default=None)
 
@@ -158,6 +161,7 @@ class DiagnosisResult(SavedResult):
             for m in self.where_final[:5]:
                 L.append(f"    {m.feature:27s} {m.misfit_sigma:5.1f} σ  p = {m.p_value:.2g}  {m.detail}")
         L += self._report_rounds()
+        L += self._report_twins_final()
         if self.regime_screen:
             L += self._report_regime_screen()
         L += self._report_regime_profile()
@@ -204,7 +208,9 @@ class DiagnosisResult(SavedResult):
         """One table per round: each candidate's Δnll, p, ΔAIC, ΔBIC, gaps and note."""
         L = []
         for k, rnd in enumerate(self.rounds):
-            L.append(f"[[Candidates, round {k + 1}]]" + (f" (after adding {', '.join(self.effects[:k])})" if k else ""))
+            # (the effects named in the rounds before: a twin may have replaced one since)
+            before = [r.chosen for r in self.rounds[:k] if r.chosen] or self.effects[:k]
+            L.append(f"[[Candidates, round {k + 1}]]" + (f" (after adding {', '.join(before)})" if k else ""))
             L.append(f"    {'effect':24s} {'Δnll':>9s} {'p':>9s} {'ΔAIC':>9s} {'ΔBIC':>9s} {'gap nm':>13s} "
                      f"{'held-out nm':>13s} {'Δnll h-o':>9s}  note")
             for c in rnd.candidates:
@@ -219,6 +225,20 @@ class DiagnosisResult(SavedResult):
                          f"{_cell(_nm(c.heldout_gap_before_um), '5.1f')}->"
                          f"{_cell(_nm(c.heldout_gap_after_um), '<6.1f')} "
                          f"{_cell(c.heldout_delta_nll, '9.2f')}  {c.note}")
+        return L
+
+    def _report_twins_final(self) -> list:
+        """The named effects tested again against their twins in the final model."""
+        if not self.twins_final:
+            return []
+        L = ["[[Twins in the final model]] (each named per-run or per-device effect against its nested twin)"]
+        for c in self.twins_final:
+            if "p_value" not in c:
+                L.append(f"    {c['named']:24s} vs {c['twin']:24s} not tested: the refit failed ({c['status']})")
+                continue
+            L.append(f"    {c['named']:24s} vs {c['twin']:24s} Δχ² {c['delta_chi2']:8.1f} for {c['extra_dof']:5.1f} "
+                     f"more dof, p = {c['p_value']:.2g}, ΔBIC {c['delta_bic']:+.1f}: "
+                     + (f"{c['named']} kept" if c["outcome"] == "kept" else f"{c['twin']} in its place"))
         return L
 
     def _report_regime_screen(self) -> list:
@@ -288,7 +308,7 @@ class DiagnosisResult(SavedResult):
                          gap_tolerance=self.options.gap_tolerance, resequence=self.options.resequence,
                          magnitude_check=self.options.magnitude_check),
             timing=self.timing, notes=self.notes, regime_screen=self.regime_screen, regime_moves=self.regime_moves,
-            regime_profile=self.regime_profile,
+            regime_profile=self.regime_profile, twins_final=self.twins_final,
             # each round's measurement of the current model (the report's gaps; ``rounds`` lists candidates only)
             current_model=[rnd.current_json() for rnd in self.rounds],
         )
@@ -313,7 +333,7 @@ class DiagnosisResult(SavedResult):
                    final=dict(d.get("final") or {}), confounded=list(d.get("confounded", [])), options=opts,
                    timing=dict(d.get("timing") or {}), notes=list(d.get("notes", [])),
                    regime_screen=list(d.get("regime_screen") or []), regime_moves=list(d.get("regime_moves") or []),
-                   regime_profile=d.get("regime_profile"))
+                   regime_profile=d.get("regime_profile"), twins_final=list(d.get("twins_final") or []))
 
     def save_json(self, path) -> Path:
         """Strict JSON: non-finite numbers are written as null (the same as :meth:`save`)."""

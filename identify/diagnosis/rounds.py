@@ -69,6 +69,7 @@ from identify.diagnosis.result import DiagnosisOptions, DiagnosisResult
 from identify.diagnosis.scores import MIN_CLOSED, closed_share, score_round
 from identify.diagnosis.selection import at_noise, choose_named, own_text, put, refit_beside
 from identify.diagnosis.tasks import candidate_tasks, expected_cost, rank_tasks
+from identify.diagnosis.twins_final import recheck_twins
 from identify.diagnosis.verdict import final_record
 from identify.diagnosis.verdict import verdict as decide_verdict
 from identify.diagnosis.where import where, with_regime
@@ -173,6 +174,7 @@ def _diagnose(data, *, coating, fit_options, options, baseline, executor, progre
     st = _start_state(baseline, opts, executor, say)
     while _one_round(st):
         pass
+    twins = recheck_twins(st)
     final_prob, final_w = rebuild_problem(st.current, st.runs, st.fopts, st.prob)
     regime_final = regime_check_notes(st.current["law"], st.current["values"], st.regime_runs, st.notes)
     # runs the final model puts in another regime than their data: whatever the held-out
@@ -200,6 +202,7 @@ def _diagnose(data, *, coating, fit_options, options, baseline, executor, progre
         timing=dict(total_s=time.perf_counter() - t0, refits=st.n_refits,
                     baseline_fit_s=float(baseline.solver.get("wall_time_s", float("nan")))),
         notes=st.notes, final_problem=final_prob, final_w=final_w, regime_screen=screen, regime_profile=profile,
+        twins_final=twins,
     )
 
 

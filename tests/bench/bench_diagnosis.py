@@ -1,14 +1,15 @@
 """Diagnosis benchmark: confusion table over the effect library, detection limits, speed.
 
     python tests/bench/bench_diagnosis.py confusion [--effects a,b,c+d] [--scales 1,0.3,0.1]
-        [--quick] [--workers 2] [--out bench_diagnosis.jsonl] [--progress]
+        [--quick] [--workers 2] [--out bench_diagnosis.jsonl] [--progress] [--candidates a,b]
     python tests/bench/bench_diagnosis.py speed [--workers 2] [--progress]
 
 ``confusion``: for each effect (and "none", "outside"), simulate the withheld-effect data
 set (:func:`identify.simulation.withheld.withheld_dataset`) with each scale times the effect's
 realistic departure from its null (:meth:`identify.model.effects.Effect.scaled_magnitude`),
-fit the baseline without it, diagnose with every candidate, and record what was named, what
-was reported confounded, the verdict and the held-out gap before/after.
+fit the baseline without it, diagnose with every candidate (or those of ``--candidates``), and
+record what was named, what was reported confounded, the verdict and the held-out gap
+before/after.
 One JSON line per case is appended as soon as it is done (nothing is lost to a stop);
 the table is printed at the end. The detection limit of an effect is the smallest
 magnitude at which it is still named (or reported confounded). ``a+b``: both effects on
@@ -65,9 +66,10 @@ def _magnitude(eid, scale):
     return eff.scaled_magnitude(scale) if eff.nested and eff.magnitude else None
 
 
-def case(eid, scale, quick, workers, seed=0, progress=False):
+def case(eid, scale, quick, workers, seed=0, progress=False, candidates=None):
     """One data set: ``eid`` an effect id, None, "outside", or ids joined by "+" (every one
-    of them on at once, each at ``scale``; the baseline fixes what any of them needs)."""
+    of them on at once, each at ``scale``; the baseline fixes what any of them needs);
+    ``candidates``: the effects the diagnosis tries (default: the whole library)."""
     camera = CAMERA.get(eid, {})
     row_id, eid = eid, (eid.split(":")[0] if eid else eid)
     ids = eid.split("+") if eid and "+" in eid else None
@@ -82,7 +84,8 @@ def case(eid, scale, quick, workers, seed=0, progress=False):
                                     free=tuple(n for n in per[0].free if all(n in o.free for o in per)))
     else:
         fopts = _baseline_options(eid)
-    res = diagnose(traces, fit_options=fopts, options=DiagnosisOptions(workers=workers), progress=progress)
+    dopts = DiagnosisOptions(workers=workers, **({"effects": list(candidates)} if candidates else {}))
+    res = diagnose(traces, fit_options=fopts, options=dopts, progress=progress)
     first = {c["effect"]: c for c in res.candidates}
     # (no baseline: the withheld effect's screen record, which may say what it is confounded with)
     screened = {r["effect"]: r for r in res.regime_screen if r["effect"]}
@@ -103,7 +106,7 @@ def case(eid, scale, quick, workers, seed=0, progress=False):
                 heldout_before_um=truth.get("heldout_gap_before_um"),
                 heldout_after_um=truth.get("heldout_gap_after_um"),
                 final_heldout_um=res.final["heldout_gap_um"], final_gap_um=res.final["gap_um"],
-                final_values=res.final["values"],
+                final_values=res.final["values"], twins_final=res.twins_final,
                 noise_um=res.final["noise_um"], notes=res.notes,
                 significant=[(c["effect"], c.get("p_value"), round(c.get("closed_fraction") or 0, 2), c.get("note"))
                              for c in res.candidates if c.get("significant")],
@@ -139,7 +142,8 @@ def confusion(args):
         for sc in (scales if nested else [1.0]):
             try:
                 row = case(None if eid == "none" else eid, sc, args.quick, args.workers,
-                           progress=_stamped if args.progress else False)
+                           progress=_stamped if args.progress else False,
+                           candidates=args.candidates.split(",") if args.candidates else None)
             except Exception as err:  # one failed case never sinks the table
                 row = dict(effect=eid, scale=sc, error=f"{type(err).__name__}: {err}")
             with out.open("a") as f:
@@ -215,6 +219,8 @@ def _main(argv=None):
     c.add_argument("--quick", action="store_true", help="15 µm runs instead of 30 µm")
     c.add_argument("--workers", type=int, default=2)
     c.add_argument("--out", default="bench_diagnosis.jsonl")
+    c.add_argument("--candidates", default=None, help="the effects the diagnosis tries, comma-separated "
+                   "(default: the whole library)")
     c.add_argument("--progress", action="store_true", help="the diagnosis's progress on stderr, time-stamped")
     c.set_defaults(func=confusion)
     s = sub.add_parser("speed")
