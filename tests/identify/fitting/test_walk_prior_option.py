@@ -8,6 +8,7 @@ from types import SimpleNamespace
 
 import pytest
 
+import identify
 from identify import fit
 from identify.cli import _fit_options, build_parser, main
 from identify.fitting.options import FitError, FitOptions
@@ -131,3 +132,37 @@ def test_a_fit_with_the_walk_holds_each_runs_drift_rate_in_its_interval(walk_fit
     for name, rate in truth.items():
         lo, hi = res.parameters[f"drift_rate@run:{name}"].ci95
         assert lo <= rate <= hi, (name, rate, lo, hi)
+
+
+def test_a_walk_fit_from_a_plain_start_holds_the_rates_of_another_truth_and_a_fresh_contact():
+    """Not the withheld set's conventions: another friction truth (the robustness issue's
+    μmax 0.74, μmin 0.45, τ 55 ms, A 0.012), each run starting on a fresh contact (state at
+    μmin + 0.05, not fully aged) and pre-stretched, rates and a walk of the test's own
+    (15 nm/√s, sampled as increments, not as the fit's six modes), 60 nm noise, frames not
+    locked to the steps; fitted from the plain start at the walk's true intensity.
+
+    Measured before the fit held the priored coefficients for a first solve: from the
+    preset the walk took up the start's misfit, and the fit ended `Solve_Succeeded` in
+    another basin, μmin 0.345 ± 0.009 and A 0.0215 ± 0.0009 (12σ and 10σ from the truth),
+    with every rate holding its truth."""
+    truth = dict(mu_max=0.74, mu_min=0.45, tau=0.055, A=0.012)
+    runs = [(2.13, 5.0, 100.0, 6e-8), (20.3, 40.0, 100.0, -3e-8), (2.13, 12.0, 30.0, 1.5e-8)]
+    traces = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for i, (k, nb, fp, rate) in enumerate(runs):
+            sim = identify.simulate(spring_constant_N_per_m=k, normal_load_uN=nb, step_frequency_Hz=fp,
+                                    travel_um=15.0, params=truth, stick_speed_m_per_s=1e-5,
+                                    initial_state=truth["mu_min"] + 0.05, initial_elongation_um=0.4)
+            traces.append(sim.sample(frame_rate_Hz=3.7 * fp, noise_nm=60.0, seed=77 + i, name=f"own{i}",
+                                     drift_rate_m_per_s=rate, drift_walk_m_per_sqrt_s=15e-9))
+        res = fit(traces, options=FitOptions(free=FREE + ("drift_rate@run",) + WALK, fixed={"v_stick": 1e-5},
+                                             walk_intensity=15e-9))
+    assert 0.8 < res.redchi < 1.2, res.report()
+    assert "with priors held for a first solve" in res.start_source
+    for name, value in truth.items():
+        lo, hi = res.parameters[name].ci95
+        assert lo <= value <= hi, (name, value, lo, hi)
+    for i, (*_, rate) in enumerate(runs):
+        lo, hi = res.parameters[f"drift_rate@run:own{i}"].ci95
+        assert lo <= rate <= hi, (i, rate, lo, hi)
