@@ -238,7 +238,8 @@ class DiagnosisResult(SavedResult):
                 continue
             L.append(f"    {c['named']:24s} vs {c['twin']:24s} Δχ² {c['delta_chi2']:8.1f} for {c['extra_dof']:5.1f} "
                      f"more dof, p = {c['p_value']:.2g}, ΔBIC {c['delta_bic']:+.1f}: "
-                     + (f"{c['named']} kept" if c["outcome"] == "kept" else f"{c['twin']} in its place"))
+                     + (f"{c['named']} kept" if c["outcome"] == "kept" else f"{c['twin']} in its place")
+                     + f" ({c['status']})")
         return L
 
     def _report_regime_screen(self) -> list:

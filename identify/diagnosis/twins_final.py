@@ -23,7 +23,7 @@ from scipy import stats
 
 from identify.diagnosis.candidates import CandidateTask, run_candidate
 from identify.diagnosis.records import CandidateResult
-from identify.diagnosis.selection import TWIN_P
+from identify.diagnosis.selection import TWIN_P, converged
 from identify.diagnosis.tasks import candidate_starts
 from identify.model.effects import get_effect
 
@@ -79,6 +79,18 @@ def recheck_twins(st) -> list:
     final = st.final_res
     if final is None or not final.ok or len(st.effects) < 2:
         return checks
+    last = st.rounds[-1].current if st.rounds else None
+    if last is not None and not last.ok:
+        # the final numbers are a named candidate's, on a mode sequence decided before:
+        # a refit on the current one would not compare like with like
+        return checks
+    if st.regime_runs:
+        # the runs left out for their regime are read next with the last round's refits,
+        # made in the model as named; a twin in its place would leave them stale
+        st.notes.append("the named per-run or per-device effects were not tested again against their twins in "
+                        "the final model: runs were left out for their regime, and their screen reads the last "
+                        "round's refits of the model as named")
+        return checks
     k = 0
     while k < len(st.effects) - 1:  # (a twin that took a place is tested against its own twin)
         task = twin_task(st, k)
@@ -108,6 +120,14 @@ def recheck_twins(st) -> list:
         if test["keeps"]:
             st.notes.append(f"{sid} tested again against {gid} in the final model: its extra values still fit "
                             f"better ({test['text']}); it stays named")
+            k += 1
+            continue
+        if not converged(res):
+            # (an unconverged twin would make a final model no round measured as such)
+            check["outcome"] = "kept"
+            st.notes.append(f"{sid} tested again against {gid} in the final model: the refit with {gid} did not "
+                            f"converge ({res.status}), though its χ² says {sid}'s extra values add nothing "
+                            f"({test['text']}); {sid} stays named")
             k += 1
             continue
         later = ", ".join(e for e in st.effects if e != sid)

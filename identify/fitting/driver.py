@@ -276,8 +276,9 @@ def _fit(data, *, coating, options, true_values, progress):
     prob.progress = say
     start_given = dict(start)
     start, staged, starts, start_source = _starts(prob, start, start_source, opts, say)
-    starts[0], start_source = _priored_held_first(prob, starts[0], start_source, say)
     solves = _Solves(prob, say, loose=opts.multistart == 0)
+    if prob.prior_sd():
+        start_source += f" (each start solved first with the {len(prob.prior_sd())} parameter(s) with priors held)"
     stage = Stage(say, "solver starts", len(starts)) if len(starts) > 1 else None
     if stage is not None:
         stage.start(f"{len(starts)} starts ({opts.multistart} random)")
@@ -457,10 +458,11 @@ def _starts(prob, start: dict, start_source: str, opts, say):
     return start, staged, starts, start_source
 
 
-def _priored_held_first(prob, w0, start_source: str, say):
-    """The first start solved with every parameter that has a prior held at its start
-    (a walk's coefficients at their prior's zero), the rest then started from there:
-    (start, start_source). Without priors, ``w0`` as it is.
+def _priored_held_first(prob, w0, say) -> tuple:
+    """A start solved with every parameter that has a prior held at its start value (a
+    walk's coefficients at their prior's zero), for the full solve to start from: (start,
+    the held solve's iterations and wall time, or None where there are no priors or it
+    did not converge, and the start is ``w0`` as it is).
 
     Why: from the preset, far from the data, the penalised coefficients take up the
     start's misfit and lead the friction parameters into another basin. Measured (three
@@ -471,18 +473,18 @@ def _priored_held_first(prob, w0, start_source: str, say):
     ± 0.0057, the truth inside every interval."""
     held = [prob.theta.names.index(n) for n in prob.prior_sd()]
     if not held:
-        return w0, start_source
-    say(f"solving: the start with the {len(held)} parameter(s) with priors held at their start values")
+        return w0, None
+    say(f"  first with the {len(held)} parameter(s) with priors held at their start values")
     try:
         res = prob.solve(w0, fixed={i: float(w0[i]) for i in held}, loose=True)
     except Exception as err:  # (the full solve from the start as it was says what is wrong)
         log.info("the solve with the priored parameters held failed: %s", err)
-        return w0, start_source
+        return w0, None
     if not res.get("success") or not np.all(np.isfinite(res["w"])):
         log.info("the solve with the priored parameters held ended %s: the full solve starts as it was",
                  res.get("status"))
-        return w0, start_source
-    return res["w"], start_source + f" -> the {len(held)} parameter(s) with priors held for a first solve"
+        return w0, None
+    return res["w"], dict(iterations=int(res["iterations"]), wall_s=float(res["wall_s"]))
 
 
 class _Solves:
@@ -498,7 +500,12 @@ class _Solves:
         if stage is None:
             self.say(f"solving: {label}")
         try:
-            self.results.append(dict(self.prob.solve(w, loose=self.loose if loose is None else loose), start_w=w))
+            w_from, held = _priored_held_first(self.prob, w, self.say)
+            res = dict(self.prob.solve(w_from, loose=self.loose if loose is None else loose), start_w=w)
+            if held is not None:  # (the held solve is part of this start's work)
+                res.update(iterations=int(res["iterations"]) + held["iterations"],
+                           wall_s=float(res["wall_s"]) + held["wall_s"], held_first=held)
+            self.results.append(res)
         except Exception as err:
             self.results.append(dict(w=w, f=np.inf, status=f"failed: {err}", success=False, iterations=0,
                                      wall_s=0.0, start_w=w))

@@ -46,13 +46,13 @@ def _state(executor, effects=("drift_walk", "load_offset"), candidates=None):
                    bounds=dict(walk.bounds), priors=priors)
     return SimpleNamespace(effects=list(effects), runs=RUNS, opts=opts, current=current, final_res=final,
                            fopts=None, folds=[[0], [1], [2]], threads=1, regime_runs=[], where0=[],
-                           executor=executor, n_refits=0, notes=[], say=lambda m: None)
+                           executor=executor, n_refits=0, notes=[], say=lambda m: None, rounds=[])
 
 
-def _twin_record(chi2, n_eff):
+def _twin_record(chi2, n_eff, status="Solve_Succeeded"):
     def make(task):
         values = {**task.values, **{n: 5e-9 for n in task.extra}}
-        return CandidateResult(effect=task.effect, ok=True, status="Solve_Succeeded", chi2=chi2, n_eff=n_eff,
+        return CandidateResult(effect=task.effect, ok=True, status=status, chi2=chi2, n_eff=n_eff,
                                n_obs=N_OBS, free=[*task.free, *task.extra], law=task.law, values=values,
                                w=np.arange(len(task.free) + len(task.extra) + 2.0), ev_M=np.zeros(1),
                                priors=task.priors or None, gap=dict(gap_um=0.02, noise_um=0.02),
@@ -122,6 +122,27 @@ def test_a_failed_twin_refit_keeps_the_named_effect_and_says_so():
     assert any("could not be tested again" in n for n in st.notes)
 
 
+def test_a_twin_that_fits_as_well_but_did_not_converge_takes_no_place():
+    st = _state(_Executor(_twin_record(3003.0, 8.0, status="Maximum_Iterations_Exceeded")))
+    checks = recheck_twins(st)
+    assert checks[0]["outcome"] == "kept" and checks[0]["p_value"] > 0.5
+    assert st.effects == ["drift_walk", "load_offset"] and st.final_res.effect is None
+    assert any("did not converge (Maximum_Iterations_Exceeded)" in n for n in st.notes)
+
+
+def test_no_check_where_runs_were_left_out_for_their_regime_or_the_last_round_failed():
+    from identify.diagnosis.records import Round
+
+    ex = _Executor(_twin_record(3003.0, 8.0))
+    st = _state(ex)
+    st.regime_runs = ["a run left out"]
+    assert recheck_twins(st) == [] and not ex.tasks
+    assert any("runs were left out for their regime" in n for n in st.notes)
+    st = _state(ex)
+    st.rounds = [Round(current=CandidateResult(effect=None, ok=False, status="failed: x"))]
+    assert recheck_twins(st) == [] and not ex.tasks and st.effects == ["drift_walk", "load_offset"]
+
+
 def test_the_twin_test_counts_the_extra_effective_dof():
     named = SimpleNamespace(chi2=100.0, n_eff=10.0)
     assert twin_test(named, SimpleNamespace(chi2=100.0, n_eff=10.0), 1000)["keeps"] is False  # dk = 0
@@ -150,7 +171,7 @@ def test_the_checks_are_in_the_report_and_the_json_and_the_rounds_keep_what_they
     text = res.report()
     assert "[[Twins in the final model]]" in text
     assert "drift_walk               vs drift_per_run            Δχ²      3.0 for   5.0 more dof" in text
-    assert "drift_per_run in its place" in text and "not tested: the refit failed (failed: x)" in text
+    assert "drift_per_run in its place (Solve_Succeeded)" in text and "not tested: the refit failed (failed: x)" in text
     assert "[[Candidates, round 2]] (after adding drift_walk)" in text  # what round 1 named
     back = DiagnosisResult.from_dict(res.to_json())
     assert back.twins_final == twins and back.report() == text

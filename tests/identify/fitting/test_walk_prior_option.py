@@ -159,7 +159,7 @@ def test_a_walk_fit_from_a_plain_start_holds_the_rates_of_another_truth_and_a_fr
         res = fit(traces, options=FitOptions(free=FREE + ("drift_rate@run",) + WALK, fixed={"v_stick": 1e-5},
                                              walk_intensity=15e-9))
     assert 0.8 < res.redchi < 1.2, res.report()
-    assert "with priors held for a first solve" in res.start_source
+    assert "each start solved first with the 18 parameter(s) with priors held" in res.start_source
     for name, value in truth.items():
         lo, hi = res.parameters[name].ci95
         assert lo <= value <= hi, (name, value, lo, hi)
