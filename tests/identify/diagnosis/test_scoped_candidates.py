@@ -170,3 +170,25 @@ def test_a_global_candidate_and_its_per_device_twin_are_told_apart_by_their_own_
     from identify.diagnosis.selection import try_named
 
     assert try_named(g, [s])[1] is not None
+
+
+def test_a_larger_twin_whose_refit_did_not_converge_leaves_the_name_to_the_converged_one():
+    """The walk (drift per run plus a random walk) fits far better than the drift per run
+    but its refit ended at the iteration limit: the twin test needs both at their optimum,
+    and the converged drift per run stays nameable."""
+    from identify.diagnosis.selection import nested_twins, select_named
+
+    base = CandidateResult(effect=None, chi2=50000.0, n_obs=5000, n_eff=4,
+                           time_by_run=dict(chi2=400.0, df=8, p=1e-80))  # (the runs trend: a drift may be named)
+    g = _twin("drift_per_run", 30000.0, 12, {"drift_rate@run:a": 0.0})
+    s = _twin("drift_walk", 21000.0, 48, {"drift_rate@run:a": 0.0, "walk_1@run:a": 0.0})
+    s = s.but(status="Maximum_Iterations_Exceeded")
+    assert get_effect("drift_walk").global_twin == "drift_per_run"
+    kept, out = nested_twins([g, s], base)
+    assert [c.effect for c in kept] == ["drift_per_run"]
+    assert out[0].effect == "drift_walk" and "did not converge (Maximum_Iterations_Exceeded)" in out[0].note
+    chosen, group, _ = select_named([g, s], base)
+    assert group is None and chosen is not None and chosen.effect == "drift_per_run"
+    # converged, the walk's extra values would win
+    kept, _ = nested_twins([g, s.but(status="Solve_Succeeded")], base)
+    assert [c.effect for c in kept] == ["drift_walk"]
