@@ -88,11 +88,8 @@ def nested_twins(names: list, base) -> tuple:
         g = by_id.get(twin)
         if g is None:
             continue
-        dk = float(s.n_eff - g.n_eff)
-        stat = float(g.chi2 - s.chi2)
-        p = float(stats.chi2.sf(max(stat, 0.0), dk)) if dk > 0 else 1.0
-        dbic = -stat + dk * math.log(max(base.n_obs or 2, 2))
-        test = f"Δχ² {stat:.1f} for {dk:.0f} more degrees of freedom, p = {p:.2g}, ΔBIC {dbic:+.1f}"
+        judged = twin_test(s, g, base.n_obs)
+        test = judged["text"]
         if converged(g) and not converged(s):
             # the test compares two optima, and the larger one's refit has not reached its
             # own: it cannot be named, and would keep its converged twin from a name too.
@@ -103,7 +100,7 @@ def nested_twins(names: list, base) -> tuple:
             out.append(s.but(note=f"not named: its refit did not converge ({s.status}), and {g.effect}, "
                                   f"nested in it, did ({test} so far); " + (s.estimate_text or "")))
             continue
-        if dk > 0 and p < TWIN_P and dbic < 0:
+        if judged["keeps"]:
             out.append(g.but(note=f"not named: {s.effect} fits better beyond its extra values ({test}); "
                                   + (g.estimate_text or "")))
         else:
@@ -111,6 +108,19 @@ def nested_twins(names: list, base) -> tuple:
                                   f"({test}); " + (s.estimate_text or "")))
     gone = {c.effect for c in out}
     return [c for c in names if c.effect not in gone], out
+
+
+def twin_test(larger, twin, n_obs: int) -> dict:
+    """The nested test of a larger candidate (or model) against its twin, each a measured
+    record: whether the larger one's extra values fit better beyond chance (p <
+    :data:`TWIN_P` and a lower BIC), with the figures and their text."""
+    dk = float(larger.n_eff - twin.n_eff)
+    stat = float(twin.chi2 - larger.chi2)
+    p = float(stats.chi2.sf(max(stat, 0.0), dk)) if dk > 0 else 1.0
+    dbic = -stat + dk * math.log(max(n_obs or 2, 2))
+    return dict(delta_chi2=stat, extra_dof=dk, p_value=p, delta_bic=dbic,
+                keeps=bool(dk > 0 and p < TWIN_P and dbic < 0),
+                text=f"Δχ² {stat:.1f} for {dk:.3g} more degrees of freedom, p = {p:.2g}, ΔBIC {dbic:+.1f}")
 
 
 SIGNATURE_P = 0.01

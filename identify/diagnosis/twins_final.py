@@ -16,14 +16,11 @@ its place, with its own refit as the final model (its held-out folds included).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from scipy import stats
 
 from identify.diagnosis.candidates import CandidateTask, run_candidate
 from identify.diagnosis.records import CandidateResult
-from identify.diagnosis.selection import TWIN_P, converged
+from identify.diagnosis.selection import converged, twin_test
 from identify.diagnosis.tasks import candidate_starts
 from identify.model.effects import get_effect
 
@@ -58,18 +55,6 @@ def twin_task(st, k: int) -> CandidateTask | None:
         regime_runs=list(st.regime_runs))
 
 
-def twin_test(named, twin, n_obs: int) -> dict:
-    """The nested test of the named model against the one with its twin in its place (each
-    a measured record): whether the named one's extra values fit better beyond chance."""
-    dk = float(named.n_eff - twin.n_eff)
-    stat = float(twin.chi2 - named.chi2)
-    p = float(stats.chi2.sf(max(stat, 0.0), dk)) if dk > 0 else 1.0
-    dbic = -stat + dk * math.log(max(n_obs or 2, 2))
-    return dict(delta_chi2=stat, extra_dof=dk, p_value=p, delta_bic=dbic,
-                keeps=bool(dk > 0 and p < TWIN_P and dbic < 0),
-                text=f"Δχ² {stat:.1f} for {dk:.1f} more degrees of freedom, p = {p:.2g}, ΔBIC {dbic:+.1f}")
-
-
 def recheck_twins(st) -> list:
     """Every named effect but the last, with a nested twin among the candidates, judged
     against it in the final model; where the twin wins it takes the effect's place in
@@ -84,7 +69,7 @@ def recheck_twins(st) -> list:
         # the final numbers are a named candidate's, on a mode sequence decided before:
         # a refit on the current one would not compare like with like
         return checks
-    if st.regime_runs:
+    if st.regime_runs and any(twin_task(st, k) is not None for k in range(len(st.effects) - 1)):
         # the runs left out for their regime are read next with the last round's refits,
         # made in the model as named; a twin in its place would leave them stale
         st.notes.append("the named per-run or per-device effects were not tested again against their twins in "
