@@ -38,10 +38,12 @@ segmentation
     fits better by more than 9σ̂² of RSS (a slip delayed by its creep nucleation); the
     best other step-aligned split and its extra RSS are kept with the slip, for the fit
     to try where the frames leave the step ambiguous.
-    (5) a block that seems to move backward within its plateaus (a too small step in
-    the metadata, or a drift of the elongation) cuts every plateau into pieces: when
-    that speed is significant (:data:`BACKWARD_SIGMAS`) the segmentation is repeated on
-    b detrended by it, with a warning; everything else keeps b as given.
+    (5) a block that seems to move within its plateaus (backward: a too small step in
+    the metadata, or a drift of the elongation; forward: a drift the other way, or
+    creep while it sticks) cuts every plateau into pieces: when that speed is
+    significant (:data:`TREND_SIGMAS`; forward, only below a quarter of the puller
+    speed) the segmentation is repeated on b detrended by it, with a warning;
+    everything else keeps b as given.
 trigger step
     A slip starts at a step instant, and the block sits at its old level on every frame
     before that step. The trigger step of a slip is n(t) of the first frame after the
@@ -81,18 +83,18 @@ from identify.jsonio import jsonable as _jsonable
 from identify.traces.io import Trace
 
 # (``X as X``: names of the parts split out of this module stay importable from it)
-from identify.traces.plateaus import BACKWARD_SIGMAS as BACKWARD_SIGMAS
 from identify.traces.plateaus import MAD_TO_SIGMA as MAD_TO_SIGMA
 from identify.traces.plateaus import (
     MAX_INSIDE_FRAMES,
     MIN_PLATEAU_FRAMES,
     PENALTY_FACTOR,
-    backward_trend_segments,
     creep_ratio,
     pelt,
     robust_noise,
+    trend_segments,
 )
 from identify.traces.plateaus import NOISE_FLOOR_STEPS as NOISE_FLOOR_STEPS
+from identify.traces.plateaus import TREND_SIGMAS as TREND_SIGMAS
 from identify.traces.reduced import reduced_run
 from identify.traces.slips import AMBIGUOUS_RSS as AMBIGUOUS_RSS
 from identify.traces.slips import empty_slips, measure_slips, plateau_table, slip_warnings, trigger_alternatives
@@ -188,7 +190,8 @@ class RunEvents:
         plateaus.
     segmentation_trend_m_per_s : float
         Speed removed from b before the plateaus were found (negative: the block seemed
-        to move backward within its plateaus, :data:`BACKWARD_SIGMAS`); 0 when none was
+        to move backward within its plateaus; positive: forward, :data:`TREND_SIGMAS`);
+        0 when none was
         significant. The slips' lengths and z are those of the b as given, so with long
         rests a slip found on the detrended b can show a smaller z.
     """
@@ -329,12 +332,12 @@ def extract_events(trace: Trace, *, noise_m: float | None = None, min_z: float =
     if frames_per_step < 0.999:
         warnings.append(_sparse_frames_warning(frames_per_step))
     run = segment_at_step_phase(trace, noise_m, min_z, frames_per_step, warnings)
-    segs, sigma, trend, seg_warnings = backward_trend_segments(
+    segs, sigma, trend, seg_warnings = trend_segments(
         t, run.b, run.steps, run.segments, run.sigma, run.warnings, noise_m, min_z, frames_per_step, fp, dx
     )
     warnings += seg_warnings
     if trend:
-        warnings.append(_backward_trend_warning(trend, fp, dx))
+        warnings.append(_trend_warning(trend, fp, dx))
     plateau_of_frame, plateaus = plateau_table(run.b, run.puller, segs, sigma, len(trace))
     if len(segs) >= 2:
         slips = _slips(run, segs, plateaus, sigma, trend, frames_per_step, trace, warnings)
@@ -379,14 +382,21 @@ def _sparse_frames_warning(frames_per_step: float) -> str:
     )
 
 
-def _backward_trend_warning(trend: float, fp: float, dx: float) -> str:
-    """The warning of a block that seemed to move backward within its plateaus, whose
-    speed was removed before segmenting (:data:`BACKWARD_SIGMAS`)."""
+def _trend_warning(trend: float, fp: float, dx: float) -> str:
+    """The warning of a block that seemed to move within its plateaus, whose speed was
+    removed before segmenting (:data:`TREND_SIGMAS`)."""
+    ratio = abs(trend) / (fp * dx)
+    if trend < 0:
+        return (
+            f"inside its plateaus the block moves backward at {ratio:.3f} of the puller "
+            f"speed ({trend * 1e9:.4g} nm/s): the elongation rises faster than the metadata's step of "
+            f"{dx * 1e9:.4g} nm per step (a wrong step size) or drifts; the plateaus were found on the "
+            "block position detrended by that speed"
+        )
     return (
-        f"inside its plateaus the block moves backward at {-trend / (fp * dx):.3f} of the puller "
-        f"speed ({trend * 1e9:.4g} nm/s): the elongation rises faster than the metadata's step of "
-        f"{dx * 1e9:.4g} nm per step (a wrong step size) or drifts; the plateaus were found on the "
-        "block position detrended by that speed"
+        f"inside its plateaus the block moves forward at {ratio:.3f} of the puller speed "
+        f"({trend * 1e9:.4g} nm/s): the elongation drifts down, or the block creeps while it sticks; "
+        "the plateaus were found on the block position detrended by that speed"
     )
 
 

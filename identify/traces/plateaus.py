@@ -2,7 +2,7 @@
 
 PELT with the Gaussian cost and the penalty of :data:`PENALTY_FACTOR`; then the merging of
 insignificant level changes, the exclusion of frames caught inside slips, the snapping of
-slip boundaries to steps and, where the block seems to move backward within its plateaus,
+slip boundaries to steps and, where the block seems to move within its plateaus,
 the segmentation of b detrended by that speed (steps (1)–(5) of the segmentation in
 :mod:`identify.traces.events`). With them, the robust noise estimate σ̂ the segmentation
 works in, and the creep ratio (the block's speed within its plateaus).
@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
-    "BACKWARD_SIGMAS",
+    "FORWARD_TREND_LIMIT",
+    "TREND_SIGMAS",
     "MAD_TO_SIGMA",
     "MAX_INSIDE_FRAMES",
     "MIN_PLATEAU_FRAMES",
@@ -53,11 +54,18 @@ NOISE_FLOOR_STEPS = 1e-3
 noiseless trace the segmentation then sees exact plateaus, and the cumulative sums of
 PELT keep their rounding far below the penalty."""
 
-BACKWARD_SIGMAS = 3.0
-"""A mean block speed within the plateaus this many standard errors below zero is not
-friction (the block only moves forward): the metadata's step is too small or the
-elongation drifts, and b, sloping inside every plateau, would be cut into pieces with
-backward jumps. The plateaus are then found on b detrended by that speed."""
+TREND_SIGMAS = 3.0
+"""A mean block speed within the plateaus this many standard errors from zero cuts
+every plateau into pieces: b slopes inside each one, and PELT takes the ramp for a
+staircase. Backward it is not friction (the block only moves forward): the metadata's
+step is too small or the elongation drifts. Forward it is a drift of the elongation the
+other way, or the block creeping while it sticks. Either way the plateaus are then found
+on b detrended by that speed (only the partition: levels and slips keep b as given)."""
+
+FORWARD_TREND_LIMIT = 0.25
+"""A forward speed within the plateaus is removed for the partition only below this
+fraction of the puller speed; above it the block follows the puller (creep or stepping:
+the run's regime is ``unresolved``), and there are no plateaus to keep whole."""
 
 MAD_TO_SIGMA = 1.482602218505602  # 1/Φ⁻¹(3/4): MAD of a Gaussian -> σ
 
@@ -373,10 +381,20 @@ def _segment(b: np.ndarray, sigma: float, min_z: float, steps: np.ndarray | None
 
 
 # ----------------------------------------------------------------------------- trend
-def backward_trend_segments(t, b, steps, segs, sigma, seg_warnings, noise_m, min_z, frames_per_step, fp, dx):
-    """Segments of b found after removing a significant backward speed within the
-    plateaus (:data:`BACKWARD_SIGMAS`); (segs, sigma, speed removed in m/s or 0 if none,
-    the warnings of the segmentation kept).
+def trend_segments(t, b, steps, segs, sigma, seg_warnings, noise_m, min_z, frames_per_step, fp, dx):
+    """Segments of b found after removing a significant speed within the plateaus
+    (:data:`TREND_SIGMAS`; forward only below :data:`FORWARD_TREND_LIMIT`); (segs,
+    sigma, speed removed in m/s or 0 if none, the warnings of the segmentation kept).
+
+    Why forward too: a camera whose zero drifts by 50 nm/s (a rate measured on another
+    run of the same chip) raised b by 160 nm over a 3 s rest before a fresh contact's
+    first slip, at 38 nm of noise; PELT cut that ramp into pieces whose steps of 50 nm
+    passed as slips at z 5 to 7, six spurious slips among seven real ones (z 240 to
+    400). Detrended, one remained, and the fit's mode-sequence passes removed it.
+    A forward speed is kept only where it leaves fewer plateaus than b as given: the
+    frames of slow slips (several frames each, at the plateaus' edges) also raise the
+    plateaus' mean slope (at 10 nm of noise, 0.4 % of the puller speed at 3.8 standard
+    errors), and there the detrended b was cut into more plateaus, 12 slips for 9.
 
     The speed is measured on the undetrended b inside the current plateaus, so each pass
     gives the whole trend, not an increment; pieces of a cut plateau absorb part of it,
@@ -385,9 +403,11 @@ def backward_trend_segments(t, b, steps, segs, sigma, seg_warnings, noise_m, min
     still shows in the fit's stick-phase slopes, where the diagnosis can name it."""
     trend = 0.0
     puller_speed = fp * dx
+    given = segs, sigma, seg_warnings
     for _ in range(4):
         cr, cse = creep_ratio(t, b, segs, sigma, puller_speed)
-        if not (math.isfinite(cr) and math.isfinite(cse) and cr < -BACKWARD_SIGMAS * cse):
+        if not (math.isfinite(cr) and math.isfinite(cse) and abs(cr) > TREND_SIGMAS * cse
+                and cr < FORWARD_TREND_LIMIT):
             break
         new_trend = cr * puller_speed
         if trend and abs(new_trend - trend) <= 0.02 * abs(trend):
@@ -401,6 +421,8 @@ def backward_trend_segments(t, b, steps, segs, sigma, seg_warnings, noise_m, min
         segs = new_segs
         if same:
             break
+    if trend > 0 and len(segs) >= len(given[0]):
+        return *given[:2], 0.0, given[2]
     return segs, sigma, trend, seg_warnings
 
 

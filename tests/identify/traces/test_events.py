@@ -257,6 +257,35 @@ def test_wrong_step_size_in_metadata_does_not_cut_plateaus(run30, seed):
     assert extract_events(tr).segmentation_trend_m_per_s == 0.0
 
 
+@pytest.fixture(scope="module")
+def fresh_contact_run():
+    """A fresh contact on a soft spring (2.13 N/m, 12 µN, 30 Hz): a 3 s rest before the
+    first slip, then seven slips of 1.7 µm."""
+    import warnings as _w
+
+    with _w.catch_warnings():
+        _w.simplefilter("ignore")
+        return simulate(spring_constant_N_per_m=2.13, normal_load_uN=12.0, step_frequency_Hz=30.0, travel_um=15.0,
+                        params=dict(mu_max=0.80, mu_min=0.50, tau=0.08, A=0.018), stick_speed_m_per_s=1e-5,
+                        initial_state=0.55, initial_elongation_um=0.3)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_forward_drift_does_not_cut_plateaus_into_slips(fresh_contact_run, seed):
+    """The camera's zero drifting by 50 nm/s raises b by 160 nm over the first rest: PELT
+    cut that ramp into pieces that passed as slips (measured: 5 to 7 spurious slips among
+    the seven, z 5 to 7, in each of six seeds). The forward speed is removed for the
+    partition, as a backward one is, and reported."""
+    run = fresh_contact_run
+    tr = run.sample(frame_rate_Hz=100.0, noise_nm=40.0, seed=seed, drift_rate_m_per_s=-5e-8)
+    ev = extract_events(tr)
+    np.testing.assert_array_equal(ev.slips["trigger_step"], run.slips["step_index"])
+    assert ev.segmentation_trend_m_per_s == pytest.approx(5e-8, rel=0.25)
+    assert any("moves forward" in w and "drifts" in w for w in ev.warnings)
+    # without the drift nothing is removed
+    assert extract_events(run.sample(frame_rate_Hz=100.0, noise_nm=40.0, seed=seed)).segmentation_trend_m_per_s == 0.0
+
+
 def test_given_noise_is_used_and_inputs_checked():
     tr = _staircase_trace([0.0, 1e-6, 2e-6], [20, 20, 20], NOISE, 6)
     ev = extract_events(tr, noise_m=100e-9)
