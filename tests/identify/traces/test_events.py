@@ -286,6 +286,22 @@ def test_a_forward_drift_does_not_cut_plateaus_into_slips(fresh_contact_run, see
     assert extract_events(run.sample(frame_rate_Hz=100.0, noise_nm=40.0, seed=seed)).segmentation_trend_m_per_s == 0.0
 
 
+def test_small_slips_every_few_steps_are_not_a_forward_drift(monkeypatch):
+    """Small slips every five steps (20.3 N/m, 30 µN, 100 Hz, the true step 5 % longer than
+    the metadata's; z 5 to 21) raise the plateaus' slopes where the plateaus cut across
+    them: 0.16 of the puller speed. That is the block's own advance, not a drift:
+    removing it merged real slips (39 for 46). Below a tenth of the puller speed only."""
+    import identify.traces.plateaus as plateaus
+    from identify.simulation.withheld import QUICK_CONDITIONS, withheld_dataset
+
+    (tr,) = withheld_dataset("step_size", conditions=[c for c in QUICK_CONDITIONS if c[:3] == (20.3, 30.0, 100.0)],
+                             base={"A": 0.015})
+    ev = extract_events(tr)
+    assert ev.segmentation_trend_m_per_s == 0.0 and ev.n_slips == 46
+    monkeypatch.setattr(plateaus, "FORWARD_TREND_LIMIT", 0.0)  # (the forward removal off)
+    assert extract_events(tr).slips["trigger_step"].tolist() == ev.slips["trigger_step"].tolist()
+
+
 def test_given_noise_is_used_and_inputs_checked():
     tr = _staircase_trace([0.0, 1e-6, 2e-6], [20, 20, 20], NOISE, 6)
     ev = extract_events(tr, noise_m=100e-9)
