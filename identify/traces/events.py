@@ -41,7 +41,7 @@ segmentation
     (5) a block that seems to move within its plateaus (backward: a too small step in
     the metadata, or a drift of the elongation; forward: a drift the other way, or
     creep while it sticks) cuts every plateau into pieces: when that speed is
-    significant (:data:`TREND_SIGMAS`; forward, only below a quarter of the puller
+    significant (:data:`TREND_SIGMAS`; forward, only below a tenth of the puller
     speed) the segmentation is repeated on b detrended by it, with a warning;
     everything else keeps b as given.
 trigger step
