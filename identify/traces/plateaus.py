@@ -362,8 +362,7 @@ def _segment(b: np.ndarray, sigma: float, min_z: float, steps: np.ndarray | None
     """Plateaus and excluded frames of b (steps 0-2 of the module docstring)."""
     n = b.size
     warnings: list[str] = []
-    penalty = 2.0 * math.log(max(n, 2)) * PENALTY_FACTOR
-    starts = pelt(b, penalty, scale=sigma)
+    starts = pelt(b, pelt_penalty(n), scale=sigma)
     bounds = np.append(starts, n)
     segs = [Segment(np.arange(bounds[i], bounds[i + 1])) for i in range(len(starts))]
     segs = _merge_insignificant(b, segs, sigma, min_z)
@@ -389,8 +388,7 @@ def trend_segments(t, b, steps, segs, sigma, seg_warnings, noise_m, min_z, frame
     (:data:`TREND_SIGMAS`; forward only below :data:`FORWARD_TREND_LIMIT`); (segs,
     sigma, speed removed in m/s or 0 if none, the warnings of the segmentation kept).
 
-    Why forward too: a camera whose zero drifts by 50 nm/s (a rate measured on another
-    run of the same chip) raised b by 160 nm over a 3 s rest before a fresh contact's
+    Why forward too: a camera whose zero drifts by 50 nm/s raised b by 160 nm over a 3 s rest before a fresh contact's
     first slip, at 38 nm of noise; PELT cut that ramp into pieces whose steps of 50 nm
     passed as slips at z 5 to 7, six spurious slips among seven real ones (z 240 to
     400). Detrended, one remained: the run's first slip, which has no trigger residual to
@@ -433,7 +431,7 @@ def trend_segments(t, b, steps, segs, sigma, seg_warnings, noise_m, min_z, frame
 
 EXCLUDED_FRAME_COST = 16.0
 """χ² units a frame left out of every plateau costs a partition in :func:`partition_cost`
-(a frame clipped at 4σ̂, as the step phase's profile counts it)."""
+(a frame clipped at 4σ̂: the step phase's ``CLIP_SIGMAS`` squared)."""
 
 
 def partition_cost(y, segs, sigma: float, n_frames: int) -> float:
@@ -441,9 +439,13 @@ def partition_cost(y, segs, sigma: float, n_frames: int) -> float:
     plateau's level, the PELT penalty per plateau, :data:`EXCLUDED_FRAME_COST` per frame
     left out."""
     rss = sum(float(((y[q.frames] - y[q.frames].mean()) ** 2).sum()) for q in segs) / sigma**2
-    penalty = 2.0 * math.log(max(n_frames, 2)) * PENALTY_FACTOR
     left_out = n_frames - sum(q.n for q in segs)
-    return rss + penalty * len(segs) + EXCLUDED_FRAME_COST * left_out
+    return rss + pelt_penalty(n_frames) * len(segs) + EXCLUDED_FRAME_COST * left_out
+
+
+def pelt_penalty(n_frames: int) -> float:
+    """The PELT penalty per segment in units of σ̂² (:data:`PENALTY_FACTOR`)."""
+    return 2.0 * math.log(max(n_frames, 2)) * PENALTY_FACTOR
 
 
 def _trend_explains_better(t, b, trend: float, segs, given, sigma: float) -> bool:
@@ -457,7 +459,7 @@ def _trend_explains_better(t, b, trend: float, segs, given, sigma: float) -> boo
     1759 as given. (It does not tell small slips cut across from a drift: there the
     speed's size does, :data:`FORWARD_TREND_LIMIT`.)"""
     n = b.size
-    with_trend = partition_cost(b - trend * (t - t[0]), segs, sigma, n) + 2.0 * math.log(max(n, 2)) * PENALTY_FACTOR
+    with_trend = partition_cost(b - trend * (t - t[0]), segs, sigma, n) + pelt_penalty(n)
     return with_trend < partition_cost(b, given, sigma, n)
 
 

@@ -9,7 +9,6 @@ the plateaus it gives (the step-phase part of :mod:`identify.traces.events`).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,9 +16,9 @@ import numpy as np
 from identify.traces.io import Trace
 from identify.traces.plateaus import (
     NOISE_FLOOR_STEPS,
-    PENALTY_FACTOR,
     Segment,
     inner_pairs,
+    partition_cost,
     robust_noise,
     segment_run,
 )
@@ -168,7 +167,6 @@ def profile_phase(t, e, fp, dx, cands, phi0, noise_m, min_z, frames_per_step) ->
     b0 = dx * step_counts(t, fp, phi0) - e
     floor = NOISE_FLOOR_STEPS * dx
     sigma = noise_m if noise_m is not None else max(robust_noise(b0), floor)
-    penalty = 2.0 * math.log(max(t.size, 2)) * PENALTY_FACTOR
     # φ = 0 first: the phases of the gap that wraps past 0 differ only in how the steps
     # are labelled (and in the clamp of n ≥ 0 at the start), so they must tie with it
     order = [0.0] + [c for c in [phi0, *cands] if c != 0.0]
@@ -177,9 +175,7 @@ def profile_phase(t, e, fp, dx, cands, phi0, noise_m, min_z, frames_per_step) ->
         steps = step_counts(t, fp, phi)
         b = dx * steps - e
         segs, _, _ = segment_run(b, steps, sigma, min_z, frames_per_step, noise_floor=floor)
-        rss = sum(float(((b[q.frames] - b[q.frames].mean()) ** 2).sum()) for q in segs) / sigma**2
-        left_out = t.size - sum(q.n for q in segs)
-        cost = rss + penalty * len(segs) + CLIP_SIGMAS**2 * left_out
+        cost = partition_cost(b, segs, sigma, t.size)
         if best_cost is None or cost < best_cost - PHASE_TIE:
             best, best_cost = float(phi), cost
     return best % 1.0
