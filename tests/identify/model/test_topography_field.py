@@ -5,6 +5,7 @@ leave, its derivatives in the NLP, and the evidence update of its roughness."""
 import math
 import warnings
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -39,6 +40,17 @@ def test_the_series_is_zero_at_its_null_and_the_sum_of_its_modes_off_it():
     P.update(topo_length=30e-6, topo_c2=0.01, topo_s5=-0.004)
     want = 0.01 * np.cos(2 * 2 * np.pi * x / 30e-6) - 0.004 * np.sin(5 * 2 * np.pi * x / 30e-6)
     np.testing.assert_allclose(m.topography(x, P), want, atol=1e-15)
+    # every mode, numerically and through CasADi's symbols (the arcs' right-hand side):
+    # the modes' cosines and sines come by recurrence from the first's
+    coef = dict(zip(FIELD, np.random.default_rng(4).normal(0, 0.01, len(FIELD))))
+    P.update(coef)
+    th = 2 * np.pi * x / 30e-6
+    want = sum(coef[f"topo_c{j}"] * np.cos(j * th) + coef[f"topo_s{j}"] * np.sin(j * th)
+               for j in range(1, TOPO_MODES + 1))
+    np.testing.assert_allclose(m.topography(x, P), want, rtol=0, atol=1e-15)
+    xs = ca.SX.sym("x")
+    f = ca.Function("topo", [xs], [m.topography(xs, P, ops=ca)])
+    np.testing.assert_allclose(np.ravel(f(x[None, :])), want, rtol=0, atol=1e-15)
     # each coefficient within the candidate's bounds, which are inside the table's
     for n in FIELD:
         assert eff.bounds[n] == (-0.3, 0.3)
