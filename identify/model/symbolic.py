@@ -135,15 +135,9 @@ class Model:
         coef = [P[n] for n in topo_field_names()]
         if all(isinstance(c, (int, float)) and c == 0 for c in coef):
             return out  # (the field off, as numbers: no terms to evaluate)
-        # mode j's cosine and sine by the angle-addition recurrence from mode 1's: two
-        # trigonometric calls per evaluation instead of 2·TOPO_MODES (an arc's right-hand
-        # side carries the field whether or not it is on, and is evaluated thousands of times)
         th = 2 * np.pi * x / P["topo_length"]
-        c1, s1 = ops.cos(th), ops.sin(th)
-        cj, sj = c1, s1
         for j in range(1, TOPO_MODES + 1):
-            out = out + P[f"topo_c{j}"] * cj + P[f"topo_s{j}"] * sj
-            cj, sj = cj * c1 - sj * s1, sj * c1 + cj * s1
+            out = out + P[f"topo_c{j}"] * ops.cos(j * th) + P[f"topo_s{j}"] * ops.sin(j * th)
         return out
 
     def static_coefficient(self, state, x, P, ops=np):
