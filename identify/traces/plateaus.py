@@ -388,9 +388,9 @@ def trend_segments(t, b, steps, segs, sigma, seg_warnings, noise_m, min_z, frame
     (:data:`TREND_SIGMAS`; forward only below :data:`FORWARD_TREND_LIMIT`); (segs,
     sigma, speed removed in m/s or 0 if none, the warnings of the segmentation kept).
 
-    Why forward too: a camera whose zero drifts by 50 nm/s raised b by 160 nm over a 3 s rest before a fresh contact's
-    first slip, at 38 nm of noise; PELT cut that ramp into pieces whose steps of 50 nm
-    passed as slips at z 5 to 7, six spurious slips among seven real ones (z 240 to
+    Why forward too: a camera whose zero drifts by 50 nm/s raised b by 160 nm over a
+    3 s rest before a fresh contact's first slip, at 38 nm of noise; PELT cut that ramp
+    into pieces whose steps of 50 nm passed as slips at z 5 to 7, six spurious slips among seven real ones (z 240 to
     400). Detrended, one remained: the run's first slip, which has no trigger residual to
     repair it by, and which cost the fit nothing visible (reduced χ² 1.036 at the truth).
     A forward speed is kept only below :data:`FORWARD_TREND_LIMIT` of the puller speed

@@ -40,8 +40,8 @@ def test_the_series_is_zero_at_its_null_and_the_sum_of_its_modes_off_it():
     P.update(topo_length=30e-6, topo_c2=0.01, topo_s5=-0.004)
     want = 0.01 * np.cos(2 * 2 * np.pi * x / 30e-6) - 0.004 * np.sin(5 * 2 * np.pi * x / 30e-6)
     np.testing.assert_allclose(m.topography(x, P), want, atol=1e-15)
-    # every mode, numerically and through CasADi's symbols (the arcs' right-hand side):
-    # the modes' cosines and sines come by recurrence from the first's
+    # every mode, numerically and through CasADi's symbols (as the arcs' right-hand side
+    # evaluates it)
     coef = dict(zip(FIELD, np.random.default_rng(4).normal(0, 0.01, len(FIELD))))
     P.update(coef)
     th = 2 * np.pi * x / 30e-6
