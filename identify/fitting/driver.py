@@ -535,7 +535,7 @@ def _second_opinion(solves: _Solves, best, start, start_given, staged, start_sou
         other = (start_given, "the start before staging", "unstaged")
     elif staged is not None and staged != start_given:
         other = (staged, "the staged start it rejected", "staged")
-    why = (suspect_reason(prob, best) or (improbable(prob, best) if decided else "")) \
+    why = (suspect_reason(prob, best, near_ok=decided) or (improbable(prob, best) if decided else "")) \
         if other is not None else ""
     if why:
         again = solves.solve_from(prob.initial_w(other[0]), f"the fit looks wrong ({why}); again from {other[1]}",
@@ -586,7 +586,7 @@ def _spread_if_suspect(solves: _Solves, best, start, start_source, opts, preset,
     the first one reached. (best, start, start_source, rivals: the converged solutions of
     the final problem, for the uniqueness check)."""
     prob = solves.prob
-    why = (suspect_reason(prob, best) or at_bound(prob, best) or improbable(prob, best)
+    why = (suspect_reason(prob, best, near_ok=True) or at_bound(prob, best) or improbable(prob, best)
            or tau_beyond_rests(prob, best))
     if not (why and opts.auto_starts):
         return best, start, start_source, []

@@ -109,13 +109,14 @@ class FitResult:
     @property
     def concerns(self) -> list:
         """Why this result is not one to use as it stands (empty: none found): the solver
-        did not converge, the noise does not explain the misfit (reduced χ² above
-        ``SUSPECT_REDCHI``), a free parameter sits at a bound, or the values contradict
+        did not converge (and did not stop near its solution: :attr:`stopped_near`), the
+        noise does not explain the misfit (reduced χ² above ``SUSPECT_REDCHI``), a free
+        parameter sits at a bound, or the values contradict
         the model's physics (μmin ≥ μmax). The report's first line and ``identify fit``'s
         exit status (3) say so."""
         out = []
         s = self.solver
-        if not s.get("success", True):
+        if not (s.get("success", True) or self.stopped_near):
             out.append(f"the solver did not converge ({s.get('status')})")
         if self.dof > 0 and np.isfinite(self.redchi) and self.redchi > SUSPECT_REDCHI:
             out.append(f"reduced chi-square {self.redchi:.3g}: the model does not explain the data to their noise")
@@ -127,10 +128,26 @@ class FitResult:
             out.append(f"mu_min {v['mu_min']:.4g} >= mu_max {v['mu_max']:.4g}")
         return out
 
+    @property
+    def stopped_near(self) -> bool:
+        """The solver did not converge but stopped near the solution its Gauss–Newton
+        model predicts (within ``NEAR_SOLUTION_SE`` standard errors, continuity to
+        ``NEAR_SOLUTION_FEAS_UM``): where a solution sits on an arc's kink, no line
+        search gains, and an interval shifted by half its standard error at most is
+        still one. Not a concern; the headline and the flags give the distance."""
+        s = self.solver
+        gap = s.get("solution_gap") or {}
+        return not s.get("success", True) and bool(gap.get("near"))
+
     def headline(self) -> str:
         """One line: whether the fit is one to use, and if not, why."""
         if self.concerns:
             return "!! NOT A RESULT TO USE AS IT STANDS: " + "; ".join(self.concerns)
+        if self.stopped_near:
+            return (f"Fit stopped near its solution ({self.solver.get('status')}: within "
+                    f"~{self.solver['solution_gap']['within_se']:.2g} standard errors of it), reduced chi-square "
+                    f"{self.redchi:.4g}: the values below are estimates with calibrated intervals, shifted by that "
+                    "much at most")
         return (f"Fit converged ({self.solver.get('status')}), reduced chi-square {self.redchi:.4g}: "
                 "the values below are estimates with calibrated intervals")
 

@@ -323,7 +323,7 @@ def _suspect_once(monkeypatch):
     fit_mod = importlib.import_module("identify.fitting.driver")  # (the package exports the function fit)
     calls = []
 
-    def suspect_once(prob, res):
+    def suspect_once(prob, res, **_):
         calls.append(res["f"])
         return "forced by the test" if len(calls) == 1 else ""
 
@@ -1386,6 +1386,41 @@ def test_what_makes_a_solution_suspect(small_fit):
     f5 = 0.5 * (5 * dof - prob.chi2_constant())  # reduced χ² 5: the noise explains 1
     assert "reduced χ² 5" in suspect_reason(prob, dict(f=f5, success=True))
     assert suspect_reason(prob, dict(f=np.inf, success=False)) == "no solution"
+
+
+def test_a_result_that_stopped_near_its_solution_says_so_without_a_concern(small_fit):
+    import dataclasses
+
+    gap = dict(half_chi2=0.055, continuity_um=1.7e-4, within_se=0.33, near=True)
+    stopped = dict(small_fit.solver, success=False, status="Line_Search_Failed", solution_gap=gap)
+    near = dataclasses.replace(small_fit, solver=stopped)
+    assert near.stopped_near and near.concerns == []
+    assert near.headline().startswith("Fit stopped near its solution (Line_Search_Failed: within ~0.33 standard errors")
+    far = dataclasses.replace(small_fit, solver=dict(stopped, solution_gap=dict(gap, within_se=2.1, near=False)))
+    assert not far.stopped_near and far.concerns == ["the solver did not converge (Line_Search_Failed)"]
+    assert far.headline().startswith("!! NOT A RESULT TO USE")
+
+
+def test_a_solve_that_stopped_near_its_solution_is_not_suspect(small_fit):
+    """An unconverged full solve at the solution (its Gauss–Newton model's own: what a
+    solve stopped on an arc's kink looks like) is not suspect when asked with ``near_ok``;
+    the same status at a point a few standard errors off is, and so is a loose solve's."""
+    from identify.fitting.suspect import stopped_near, suspect_reason
+
+    prob, w = small_fit.problem, small_fit.w
+    half = lambda x: 0.5 * float(prob.residuals(x) @ prob.residuals(x))  # noqa: E731
+    failed = dict(w=w, f=half(w), success=False, status="Line_Search_Failed")
+    assert stopped_near(prob, failed)
+    assert suspect_reason(prob, failed, near_ok=True) == ""
+    assert "Line_Search_Failed" in suspect_reason(prob, failed)  # (the default asks for convergence)
+    assert not stopped_near(prob, dict(failed, loose=True))
+    off = w.copy()
+    i = prob.theta.names.index("mu_min")
+    off[i] += 4 * small_fit["mu_min"].stderr / prob.theta.jacobian_diag(w[: prob.n_theta])[i]
+    assert prob.solution_gap(off)["half_chi2"] > 0.5 * 0.5**2  # (the test's premise: farther than near)
+    far = dict(failed, w=off, f=half(off))
+    assert not stopped_near(prob, far)
+    assert "Line_Search_Failed" in suspect_reason(prob, far, near_ok=True)
 
 
 def test_start_takes_the_reduced_analysis_only_where_it_determines_it(monkeypatch):
