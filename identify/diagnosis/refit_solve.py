@@ -76,7 +76,8 @@ def solve_on(prob, w0, f0: float, nameable=None) -> dict:
     """Solve from w0; continue from where it stopped while rounds that hit the iteration
     limit still gain (:data:`EXTRA_ROUNDS`, or :data:`EXTRA_ROUNDS_NAMEABLE` while
     ``nameable(½χ²)`` says the refit is already past the naming screen); a round that
-    gained less than :data:`ROUND_GAIN` is reported :data:`STALLED`."""
+    gained less than :data:`ROUND_GAIN`, or a point near continuity from which a whole
+    round gained nothing, is reported :data:`STALLED`."""
     sol = prob.solve(w0)
     its, wall, before, rounds = sol["iterations"], sol["wall_s"], f0, 0
     trail = [(sol["status"], float(sol["f"]))]  # (status, ½χ²) of every round, for the record
@@ -104,6 +105,14 @@ def solve_on(prob, w0, f0: float, nameable=None) -> dict:
         # iteration; the refit was reported "not converged" and not named)
         if not (np.isfinite(more["f"]) and (more["f"] <= sol["f"] or (
                 more.get("success") and more["f"] <= sol["f"] + CONVERGED_SLACK))):
+            if sol["status"] == "Maximum_Iterations_Exceeded" and more["f"] < sol["f"] + ROUND_GAIN \
+                    and prob._violation(sol["w"]) < GIVE_UP_FEAS:
+                # a whole round from here ended within a likelihood unit of it, near
+                # continuity: the Δnll is known to that, as after a round that gained less than ROUND_GAIN
+                # (measured, a load offset's refit on four short runs, on an AMD EPYC: ½χ²
+                # 74.643 after round 1, 74.656 after round 2; reported "not converged" and
+                # not named there, where the Intel Xeon CI machines named it)
+                sol["status"] = STALLED
             break
         sol = more
     sol["iterations"], sol["wall_s"], sol["rounds"] = its, wall, trail
