@@ -111,9 +111,8 @@ class FitResult:
         """Why this result is not one to use as it stands (empty: none found): the solver
         did not converge (and did not stop near its solution: :attr:`stopped_near`), the
         noise does not explain the misfit (reduced χ² above ``SUSPECT_REDCHI``), a free
-        parameter sits at a bound, or the values contradict
-        the model's physics (μmin ≥ μmax). The report's first line and ``identify fit``'s
-        exit status (3) say so."""
+        parameter sits at a bound, or the values contradict the model's physics (μmin ≥
+        μmax). The report's first line and ``identify fit``'s exit status (3) say so."""
         out = []
         s = self.solver
         if not (s.get("success", True) or self.stopped_near):
