@@ -1779,6 +1779,27 @@ def test_a_converged_fit_is_at_the_solution_its_linearisation_predicts(small_fit
     assert "stopped            =" not in small_fit.report()
 
 
+def test_the_solution_gap_is_computed_once_per_point(small_fit, monkeypatch):
+    """The second opinion, the spread check and the result ask for the gap at the same
+    point; the arcs' central differences are taken for the first only, and a caller
+    that changes its copy of the answer does not change the next."""
+    prob, w = small_fit.problem, small_fit.w.copy()
+    first = prob.solution_gap(w)
+    calls = []
+    inner = prob._solution_gap
+    monkeypatch.setattr(prob, "_solution_gap", lambda x: calls.append(1) or inner(x))
+    first["near"] = "changed by a caller"
+    again = prob.solution_gap(w.copy())
+    assert calls == [] and again == {k: v for k, v in first.items() if k != "near"}
+    moved = w.copy()
+    moved[0] *= 1 + 1e-6
+    prob.solution_gap(moved)
+    assert calls == [1]  # (another point: computed)
+    with prob.tuned(max_iter=prob.opts.max_iter + 1):  # (other options: computed)
+        prob.solution_gap(moved)
+    assert calls == [1, 1]
+
+
 def test_multistart_counts_a_start_within_the_solvers_resolution_as_finding_the_best():
     """Two starts at one solution differ by what the solver cannot resolve (0.02 of ½χ² on
     an 8-run fit): both found it. Another basin 1 unit higher did not; nor did a failed start."""
