@@ -149,7 +149,7 @@ def compare(case: ArcCase, reltol: float = EXACT_RELTOL, self_check: bool = True
     J_cen, t_cen = _fd(arcs, A, rows, "central", 1e-4)
     tight = arc_functions(model, REFERENCE_TOL, REFERENCE_TOL * 1e-2)
     J_ref, _ = _fd(tight, A, rows, "central", REFERENCE_STEP)
-    flags = grazing_flags(model, A, Y, arcs.index)
+    flags = grazing_flags(model, A, Y, arcs.index, arcs)
     smooth = (flags == 0) & ok
     out = dict(case=case.name, arcs=int(A.shape[1]), exact_failed=int((~ok).sum()),
                grazing=int((flags != 0).sum()),

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from identify.fitting.creep_onset import creep_onset_mask
 from identify.model.compiled import held_stderr
 from identify.model.symbolic import LENGTH_UNIT, SPEED_UNIT, TIME_UNIT, Model, slip_dae
 
@@ -68,7 +69,10 @@ ROOT_MAX_ITER = 8
 GRAZE_NODE = 1e-3
 GRAZE_ARM = 0.02
 GRAZE_HOLD = 1e-3
-GRAZING_REASONS = ("stop at a step node", "peak speed at the stick threshold", "force at the holding limit")
+# And (bit 3, where the arcs can be integrated again) the speed's dip after the
+# deceleration near the stick threshold: :mod:`identify.fitting.creep_onset`.
+GRAZING_REASONS = ("stop at a step node", "peak speed at the stick threshold", "force at the holding limit",
+                   "stop at a creep tail's onset")
 
 
 @dataclass(frozen=True)
@@ -339,13 +343,16 @@ def _mapped(f: ca.Function, n: int, threads: int) -> ca.Function:
     return f.map(n, "thread", threads) if threads > 1 else f.map(n)
 
 
-def grazing_flags(model: Model, A: np.ndarray, Y: np.ndarray, index: dict) -> np.ndarray:
+def grazing_flags(model: Model, A: np.ndarray, Y: np.ndarray, index: dict, arcs=None) -> np.ndarray:
     """Per arc, a bit mask of :data:`GRAZING_REASONS` (0: not grazing).
 
     Bit 0: the stop lies within ``GRAZE_NODE`` of a step period of a step node after
     the trigger. Bit 1: under the stick option, the peak speed lies within ``GRAZE_ARM``
     of the threshold (arming is a yes/no decision). Bit 2: at the stop the spring force
-    lies within ``GRAZE_HOLD`` of what the contact can hold (the block stays or slips on)."""
+    lies within ``GRAZE_HOLD`` of what the contact can hold (the block stays or slips on).
+    Bit 3, with ``arcs`` (the :class:`identify.fitting.arcs.ArcFunctions` of ``A``) to
+    integrate them again: the stop changes branch with the stick threshold moved by
+    :data:`identify.fitting.creep_onset.CREEP_MARGIN` (a creep tail's onset)."""
     n = A.shape[1]
     flags = np.zeros(n, int)
     if not n:
@@ -372,6 +379,8 @@ def grazing_flags(model: Model, A: np.ndarray, Y: np.ndarray, index: dict) -> np
     flags |= near_node.astype(int)
     flags |= near_arm.astype(int) << 1
     flags |= near_hold.astype(int) << 2
+    if arcs is not None:
+        flags |= creep_onset_mask(arcs, A, Y).astype(int) << 3
     return flags
 
 

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from identify.fitting.creep_onset import creep_onsets
 from identify.fitting.estimates import ParameterEstimate as ParameterEstimate
 from identify.fitting.estimates import Profile as Profile
 from identify.fitting.estimates import number_from_json
@@ -352,6 +353,8 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
     redchi = chi2 / dof
     C, scale = covariance_and_scale(prob, w, getattr(prob.opts, "covariance", "robust"), redchi)
     gap = solution_gap(prob, w) if not best.get("success", True) else None
+    if gap is not None:
+        gap["creep_onsets"] = _creep_onsets(prob, w)
     params = free_estimates(prob, w, C, scale, best, gap, start, true_values)
     cov_nat = natural_covariance(prob, w, C, scale)
     corr = correlations(prob.theta.names, cov_nat)
@@ -390,3 +393,12 @@ def _penalised_statistics(prob, w, r) -> tuple:
         parameters=len(sd), penalty_chi2=float(r[p0:p1] @ r[p0:p1]),
         effective_parameters=float(len(sd) - (prob.n_effective() - k)),
         walk_intensity_m_per_sqrt_s=None if walk is None else float(walk))
+
+
+def _creep_onsets(prob, w) -> list:
+    """:func:`identify.fitting.creep_onset.creep_onsets` for the report of an unconverged
+    fit: where its solve may have stopped on the model's kink ([] if it cannot be told)."""
+    try:
+        return creep_onsets(prob, w)
+    except Exception:  # (the report stands without it)
+        return []

@@ -234,3 +234,61 @@ def test_fit_option_exact_puts_the_exact_jacobian_in_the_nlp():
     scale = np.abs(jg["central"]).max()
     assert np.abs(jg["exact"] - jg["central"]).max() < 1e-3 * scale
     assert np.abs(jg["exact"][:, : prob.n_theta]).max() > 0.1 * scale  # (the parameter columns are there)
+
+
+def _benchmark_slips():
+    """Two slips of the 8-run withheld-conditions set's fit (noise seed 0; run 20.3 N/m,
+    30 µN, 100 Hz), at the point its solve stopped: its 2nd, whose speed's dip grazes the
+    stick threshold (stops in 0.060 ms; 0.192 ms with the threshold 10 % lower, 0.058 ms
+    10 % higher), and its 3rd, which creeps for 2 ms."""
+    fitted = dict(mu_max=0.7940956112126947, mu_min=0.4816172105270891, tau=0.06534749861756459,
+                  A=0.01520074570661423)
+    values = {**MODEL.defaults(dict(parameter_set("FOTAS"), v_stick=V_STICK)), **fitted}
+    arcs = arc_functions(MODEL)
+    cols = [arcs.inputs(x0 * 1e-6, e0 * 1e-6, s0, values, 20.3, 30e-6, 100.0, 1)
+            for x0, e0, s0 in ((0.5481897208940896, 1.1538102791059106, 0.726400939337064),
+                               (0.9361793462764259, 1.0418206537235744, 0.667892979413385))]
+    return arcs, np.hstack(cols)
+
+
+def test_a_slip_at_a_creep_tails_onset_is_flagged_and_its_neighbours_are_not():
+    """The slip whose stop changes branch within 10 % of its stick threshold is flagged
+    (bit 3 of the grazing flags, with the arcs to integrate it again); the creeping one
+    beside it, the same slip well inside its creep (threshold 30 % lower) or well past
+    its fast stop (50 % higher), and slips without the stick option are not."""
+    from identify.fitting.creep_onset import creep_onset_mask
+
+    arcs, A = _benchmark_slips()
+    Y = arcs.evaluate(A)
+    assert Y[2, 0] < 0.1 and Y[2, 1] > 1.5  # (the premise: a fast stop beside a creeping one)
+    assert creep_onset_mask(arcs, A).tolist() == [True, False]
+    assert creep_onset_mask(arcs, A, Y).tolist() == [True, False]
+    iv = arcs.index["v_stick"]
+    for factor in (0.7, 1.5):
+        B = A.copy()
+        B[iv] *= factor
+        assert not creep_onset_mask(arcs, B).any()
+    B = A.copy()
+    B[iv] = 0.0
+    assert not creep_onset_mask(arcs, B).any()
+    flags = grazing_flags(MODEL, A, Y, arcs.index, arcs)
+    assert flags[0] & 8 and not flags[1] & 8
+    assert not grazing_flags(MODEL, A, Y, arcs.index)[0] & 8  # (without the arcs: not looked for)
+
+
+def test_creep_onsets_name_the_slip_for_the_report():
+    """:func:`creep_onsets` on a problem names the slip by its run, its number in the run
+    and its trigger step, with its stop times at the three thresholds."""
+    from types import SimpleNamespace
+
+    from identify.fitting.creep_onset import creep_onsets
+
+    arcs, A = _benchmark_slips()
+    prob = SimpleNamespace(E=2, arcs=arcs, arc_inputs=lambda w: A, ev_run=np.array([0, 0]),
+                           ev_step=np.array([37.0, 52.0]), ev_k=np.array([20.3, 20.3]),
+                           ev_Nb=np.array([30e-6, 30e-6]), ev_fp=np.array([100.0, 100.0]),
+                           runs=[SimpleNamespace(name="k20.3_Nb30uN_fp100Hz")])
+    (onset,) = creep_onsets(prob, None)
+    assert (onset["run"], onset["slip"], onset["trigger_step"]) == ("k20.3_Nb30uN_fp100Hz", 1, 37)
+    assert onset["normal_load_uN"] == pytest.approx(30.0)
+    assert onset["stop_ms"] < 0.1 < onset["stop_ms_threshold_lower"] and onset["stop_ms_threshold_higher"] < 0.1

@@ -1401,6 +1401,27 @@ def test_a_result_that_stopped_near_its_solution_says_so_without_a_concern(small
     assert far.headline().startswith("!! NOT A RESULT TO USE")
 
 
+def test_a_result_that_stopped_names_the_slips_at_a_creep_tails_onset(small_fit):
+    """The report's 'stopped' line of an unconverged fit names the slips that stop at a
+    creep tail's onset (the model's kink), the first three and a count of the rest, and
+    the JSON carries them; a fit without such slips says nothing of it."""
+    import dataclasses
+
+    onset = dict(run="k20.3_Nb30", slip=12, trigger_step=4410, spring_constant_N_per_m=20.3, normal_load_uN=30.0,
+                 step_frequency_Hz=100.0, stop_ms=0.0605, stop_ms_threshold_lower=0.192,
+                 stop_ms_threshold_higher=0.058, margin=0.1)
+    gap = dict(half_chi2=0.055, continuity_um=1.7e-4, within_se=0.33, near=True, creep_onsets=[onset])
+    stopped = dataclasses.replace(
+        small_fit, solver=dict(small_fit.solver, success=False, status="Line_Search_Failed", solution_gap=gap))
+    line = next(x for x in stopped.report().splitlines() if x.strip().startswith("stopped"))
+    assert "creep tail's onset" in line and "slip 12 of k20.3_Nb30 (step 4410: stops in 0.0605 ms, 0.192 ms" in line
+    assert json.loads(json.dumps(stopped.to_json()))["solver"]["solution_gap"]["creep_onsets"][0]["slip"] == 12
+    many = dataclasses.replace(stopped, solver=dict(stopped.solver, solution_gap=dict(gap, creep_onsets=[onset] * 5)))
+    assert "and 2 more" in many.report()
+    none = dataclasses.replace(stopped, solver=dict(stopped.solver, solution_gap=dict(gap, creep_onsets=[])))
+    assert "creep tail" not in none.report()
+
+
 def test_a_solve_that_stopped_near_its_solution_is_not_suspect(small_fit):
     """An unconverged full solve at the solution (its Gauss–Newton model's own: what a
     solve stopped on an arc's kink looks like) is not suspect when asked with ``near_ok``;
