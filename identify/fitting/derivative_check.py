@@ -35,7 +35,7 @@ from identify.model.laws import get_law
 from identify.model.params import parameter_set
 from identify.model.symbolic import Model
 
-__all__ = ["DEFAULT_ROWS", "ArcCase", "arc_case", "compare", "main"]
+__all__ = ["DEFAULT_ROWS", "ArcCase", "arc_case", "compare", "format_result", "grazing_list", "main"]
 
 DEFAULT_ROWS = ("e0_um", "state0", "mu_max", "mu_min", "tau", "A")
 REFERENCE_TOL = 1e-10  # tolerance of the reference integrations
@@ -57,6 +57,7 @@ class ArcCase:
     A: np.ndarray
     Y: np.ndarray
     rows: tuple = field(default=())
+    labels: tuple = field(default=())  # per arc, which slip it is ("RUN slip N"), for the grazing list
 
 
 def arc_case(name: str, traces, values: dict | None = None, coating: str = "FOTAS",
@@ -79,7 +80,17 @@ def arc_case(name: str, traces, values: dict | None = None, coating: str = "FOTA
     A = prob.arc_inputs(w)
     arcs = arc_functions(model)
     rows = tuple(arcs.index[n] for n in DEFAULT_ROWS)
-    return ArcCase(name, model, A, arcs.evaluate(A), rows)
+    labels = tuple(f"{runs[ri].name} slip {int(np.sum(prob.ev_run[:e] == ri)) + 1}"
+                   for e, ri in enumerate(prob.ev_run))
+    return ArcCase(name, model, A, arcs.evaluate(A), rows, labels)
+
+
+def grazing_list(flags: np.ndarray, labels: Sequence[str] = ()) -> list[dict]:
+    """The grazing arcs of :func:`identify.fitting.exact_arcs.grazing_flags` ``flags``, each
+    named by its label ("RUN slip N"; "arc N" without one) with its reasons."""
+    return [dict(arc=labels[e] if e < len(labels) else f"arc {e + 1}",
+                 reasons=[r for b, r in enumerate(GRAZING_REASONS) if int(flags[e]) >> b & 1])
+            for e in np.nonzero(np.asarray(flags))[0]]
 
 
 def _errors(J: np.ndarray, ref: np.ndarray, rows, typical: np.ndarray, mask: np.ndarray) -> dict:
@@ -154,6 +165,7 @@ def compare(case: ArcCase, reltol: float = EXACT_RELTOL, self_check: bool = True
     out = dict(case=case.name, arcs=int(A.shape[1]), exact_failed=int((~ok).sum()),
                grazing=int((flags != 0).sum()),
                grazing_by_reason={r: int(((flags >> b) & 1).sum()) for b, r in enumerate(GRAZING_REASONS)},
+               grazing_arcs=grazing_list(flags, case.labels),
                rows=[arcs.input_names[r] for r in rows], reltol=reltol,
                ms_per_arc=dict(exact=1e3 * t_exact / A.shape[1], forward=1e3 * t_fwd / A.shape[1],
                                central=1e3 * t_cen / A.shape[1]))
@@ -206,7 +218,7 @@ def format_result(r: dict) -> str:
     reasons = ", ".join(f"{n} {k}" for k, n in r["grazing_by_reason"].items() if n) or "none"
     head = (f"{r['case']}: {r['arcs']} arcs, {r['grazing']} grazing ({reasons}), "
             f"{r['exact_failed']} the exact route could not do; inputs {', '.join(r['rows'])}")
-    lines = [head,
+    lines = [head, *(f"  grazing: {g['arc']} ({', '.join(g['reasons'])})" for g in r.get("grazing_arcs", [])),
              f"  {'Jacobian':<28s} {'max rel err':>12s} {'max abs err':>12s} {'agree':>7s} {'ms/arc':>8s}"]
     for name, label in (("exact", f"exact (IDAS {r['reltol']:g})"), ("forward", "forward differences"),
                         ("central", "central differences")):

@@ -292,3 +292,24 @@ def test_creep_onsets_name_the_slip_for_the_report():
     assert (onset["run"], onset["slip"], onset["trigger_step"]) == ("k20.3_Nb30uN_fp100Hz", 1, 37)
     assert onset["normal_load_uN"] == pytest.approx(30.0)
     assert onset["stop_ms"] < 0.1 < onset["stop_ms_threshold_lower"] and onset["stop_ms_threshold_higher"] < 0.1
+
+
+def test_the_derivative_check_lists_its_grazing_arcs_by_run_and_slip(fast_case):
+    """``bench derivatives`` names each grazing arc by its run and its slip number, with
+    its reasons, in its printout and its JSON."""
+    from identify.fitting.derivative_check import format_result, grazing_list
+
+    assert len(fast_case.labels) == fast_case.A.shape[1]
+    assert fast_case.labels[0] == "k2.13 slip 1" and fast_case.labels[-1].startswith("k20.3 slip ")
+    listed = grazing_list(np.array([0, 8, 3]), fast_case.labels[:2])
+    assert listed == [dict(arc="k2.13 slip 2", reasons=["stop at a creep tail's onset"]),
+                      dict(arc="arc 3", reasons=["stop at a step node", "peak speed at the stick threshold"])]
+    errors = dict(rel=1e-3, abs=1e-6, agree=0.9, n=1)
+    r = dict(case="c", arcs=3, exact_failed=0, grazing=2, rows=["e0_um"], reltol=1e-10,
+             grazing_by_reason={"stop at a step node": 1, "stop at a creep tail's onset": 1}, grazing_arcs=listed,
+             ms_per_arc=dict(exact=1.0, forward=1.0, central=1.0),
+             **{k: errors for k in ("exact", "forward", "central", "exact_grazing", "forward_grazing",
+                                    "central_grazing")})
+    text = format_result(r)
+    assert "  grazing: k2.13 slip 2 (stop at a creep tail's onset)" in text
+    assert "  grazing: arc 3 (stop at a step node, peak speed at the stick threshold)" in text
