@@ -1416,6 +1416,8 @@ def test_a_result_that_stopped_names_the_slips_at_a_creep_tails_onset(small_fit)
     line = next(x for x in stopped.report().splitlines() if x.strip().startswith("stopped"))
     assert "creep tail's onset" in line and "slip 12 of k20.3_Nb30 (step 4410: stops in 0.0605 ms, 0.192 ms" in line
     assert json.loads(json.dumps(stopped.to_json()))["solver"]["solution_gap"]["creep_onsets"][0]["slip"] == 12
+    loaded = type(stopped).from_dict(json.loads(json.dumps(stopped.to_dict())))
+    assert line in loaded.report().splitlines()
     many = dataclasses.replace(stopped, solver=dict(stopped.solver, solution_gap=dict(gap, creep_onsets=[onset] * 5)))
     assert "and 2 more" in many.report()
     none = dataclasses.replace(stopped, solver=dict(stopped.solver, solution_gap=dict(gap, creep_onsets=[])))
