@@ -353,8 +353,6 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
     redchi = chi2 / dof
     C, scale = covariance_and_scale(prob, w, getattr(prob.opts, "covariance", "robust"), redchi)
     gap = solution_gap(prob, w) if not best.get("success", True) else None
-    if gap is not None:
-        gap["creep_onsets"] = _creep_onsets(prob, w)
     params = free_estimates(prob, w, C, scale, best, gap, start, true_values)
     cov_nat = natural_covariance(prob, w, C, scale)
     corr = correlations(prob.theta.names, cov_nat)
@@ -368,7 +366,7 @@ def build_result(prob, best: dict, results: list, excluded: list, start: Mapping
         law=prob.law.name, coating=coating, n_runs=len(prob.runs), n_events=prob.E,
         n_observations=n_obs,
         nlp_size=dict(variables=prob.n_w, constraints=prob.n_g, residuals=int(len(r)), drop_frames=int(prob.D)),
-        solver=solver_record(prob, best, wall_s, gap),
+        solver=dict(solver_record(prob, best, wall_s, gap), creep_onsets=_creep_onsets(prob, w)),
         multistart=dict(starts=len(results), best_found=found, costs=[float(x["f"]) for x in results]),
         runs=runs,
         timing=timing_record(prob, best, results, wall_s),
@@ -396,8 +394,9 @@ def _penalised_statistics(prob, w, r) -> tuple:
 
 
 def _creep_onsets(prob, w) -> list:
-    """:func:`identify.fitting.creep_onset.creep_onsets` for the report of an unconverged
-    fit: where its solve may have stopped on the model's kink ([] if it cannot be told)."""
+    """:func:`identify.fitting.creep_onset.creep_onsets` for the report: the slips at the
+    model's kink, where an unconverged solve may have stopped and a converged one's ±
+    describes one side of it ([] if it cannot be told)."""
     try:
         return creep_onsets(prob, w)
     except Exception:  # (the report stands without it)

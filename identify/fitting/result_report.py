@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from identify.fitting.convergence import message
+from identify.fitting.creep_onset import onset_text
 from identify.fitting.solver_outcome import SAME_SOLUTION_HALF_CHI2, gap_text
 
 __all__ = ["fit_report"]
@@ -95,7 +96,10 @@ def _solver_notes(s: dict) -> list:
         f"    mode sequence      = {s.get('triggers_moved', 0)} trigger step(s) moved, "
         f"{s.get('slips_inserted', 0)} missed slip(s) inserted, "
         f"{s.get('slips_removed', 0)} spurious slip(s) removed by the fit",
-        *([f"    stopped            = {gap_text(s['solution_gap'])}"] if s.get("solution_gap") else []),
+        *([f"    stopped            = {gap_text(s['solution_gap'])}"
+           + (f"; {onset_text(s['creep_onsets'])}" if s.get("creep_onsets") else "")] if s.get("solution_gap") else []),
+        *([f"    kink               = {onset_text(s['creep_onsets'])}; the ± are this side's of it, a profile "
+           "(result.profile(name)) sees both"] if s.get("creep_onsets") and not s.get("solution_gap") else []),
         *([f"    not kept           = the mode sequence the fit decided ({x['triggers_moved']} trigger(s) "
            f"moved, {x['slips_inserted']} inserted, {x['slips_removed']} removed): it ended at excess χ² "
            f"{x['excess_after']:.6g} against {x['excess_before']:.6g} on the sequence as detected"]

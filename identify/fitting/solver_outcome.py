@@ -9,8 +9,6 @@ import math
 
 import numpy as np
 
-from identify.fitting.creep_onset import onset_text
-
 __all__ = ["NEAR_SOLUTION_SE", "NEAR_SOLUTION_FEAS_UM", "SAME_SOLUTION_HALF_CHI2", "best_found", "solution_gap",
            "gap_text", "unconverged_flag"]
 
@@ -56,12 +54,10 @@ def solution_gap(prob, w) -> dict | None:
 
 def gap_text(gap: dict) -> str:
     """The report's line on how far an unconverged solve stopped from its Gauss–Newton solution."""
-    onsets = onset_text(gap.get("creep_onsets") or [])
-    onsets = f"; {onsets}" if onsets else ""
     if not np.isfinite(gap["half_chi2"]):
-        return f"its Gauss–Newton model has no solution here (continuity {gap['continuity_um']:.1g} µm){onsets}"
+        return f"its Gauss–Newton model has no solution here (continuity {gap['continuity_um']:.1g} µm)"
     return (f"½χ² {gap['half_chi2']:.2g} away from the solution its Gauss–Newton step predicts (the parameters within "
-            f"~{gap['within_se']:.2g} standard errors of it), continuity {gap['continuity_um']:.1g} µm{onsets}")
+            f"~{gap['within_se']:.2g} standard errors of it), continuity {gap['continuity_um']:.1g} µm")
 
 
 def unconverged_flag(status, gap: dict | None) -> str:

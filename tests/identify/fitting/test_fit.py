@@ -1401,27 +1401,32 @@ def test_a_result_that_stopped_near_its_solution_says_so_without_a_concern(small
     assert far.headline().startswith("!! NOT A RESULT TO USE")
 
 
-def test_a_result_that_stopped_names_the_slips_at_a_creep_tails_onset(small_fit):
-    """The report's 'stopped' line of an unconverged fit names the slips that stop at a
-    creep tail's onset (the model's kink), the first three and a count of the rest, and
-    the JSON carries them; a fit without such slips says nothing of it."""
+def test_a_result_names_the_slips_at_a_creep_tails_onset(small_fit):
+    """An unconverged fit's 'stopped' line names the slips that stop at a creep tail's
+    onset (the model's kink), the first three and a count of the rest; a converged fit
+    with one says so on a line of its own (its ± are one side's of the kink); the JSON
+    carries them and a saved fit's report keeps them; a fit without any says nothing."""
     import dataclasses
 
+    assert small_fit.solver["creep_onsets"] == [] and "creep tail" not in small_fit.report()
     onset = dict(run="k20.3_Nb30", slip=12, trigger_step=4410, spring_constant_N_per_m=20.3, normal_load_uN=30.0,
                  step_frequency_Hz=100.0, stop_ms=0.0605, stop_ms_threshold_lower=0.192,
                  stop_ms_threshold_higher=0.058, margin=0.1)
-    gap = dict(half_chi2=0.055, continuity_um=1.7e-4, within_se=0.33, near=True, creep_onsets=[onset])
-    stopped = dataclasses.replace(
-        small_fit, solver=dict(small_fit.solver, success=False, status="Line_Search_Failed", solution_gap=gap))
+    gap = dict(half_chi2=0.055, continuity_um=1.7e-4, within_se=0.33, near=True)
+    stopped = dataclasses.replace(small_fit, solver=dict(small_fit.solver, success=False, status="Line_Search_Failed",
+                                                         solution_gap=gap, creep_onsets=[onset]))
     line = next(x for x in stopped.report().splitlines() if x.strip().startswith("stopped"))
     assert "creep tail's onset" in line and "slip 12 of k20.3_Nb30 (step 4410: stops in 0.0605 ms, 0.192 ms" in line
-    assert json.loads(json.dumps(stopped.to_json()))["solver"]["solution_gap"]["creep_onsets"][0]["slip"] == 12
+    assert "10 % lower" in line and "    kink " not in stopped.report()
+    assert json.loads(json.dumps(stopped.to_json()))["solver"]["creep_onsets"][0]["slip"] == 12
     loaded = type(stopped).from_dict(json.loads(json.dumps(stopped.to_dict())))
     assert line in loaded.report().splitlines()
-    many = dataclasses.replace(stopped, solver=dict(stopped.solver, solution_gap=dict(gap, creep_onsets=[onset] * 5)))
+    many = dataclasses.replace(stopped, solver=dict(stopped.solver, creep_onsets=[onset] * 5))
     assert "and 2 more" in many.report()
-    none = dataclasses.replace(stopped, solver=dict(stopped.solver, solution_gap=dict(gap, creep_onsets=[])))
-    assert "creep tail" not in none.report()
+    converged = dataclasses.replace(small_fit, solver=dict(small_fit.solver, creep_onsets=[onset]))
+    kink = next(x for x in converged.report().splitlines() if x.strip().startswith("kink"))
+    assert "slip 12 of k20.3_Nb30" in kink and "profile" in kink
+    assert converged.concerns == small_fit.concerns and converged.headline() == small_fit.headline()
 
 
 def test_a_solve_that_stopped_near_its_solution_is_not_suspect(small_fit):
