@@ -404,6 +404,8 @@ def _judge(traces, truth: dict, seed: int, check_intervals: bool) -> dict:
             row["truth_chi2"], row["ref_error"] = float("nan"), str(err)[:200]
     row.update(chi2=float(res.chi2), redchi=float(res.redchi), status=res.solver["status"],
                concerns=res.concerns, start=res.start_source,
+               # slips at a creep tail's onset: a miss beside one may be a pocket of the kink
+               creep_onsets=[f"{o['run']} slip {o['slip']}" for o in res.solver.get("creep_onsets", [])],
                values={n: float(res[n].value) for n in FREE},
                # what each interval said, to see how far a miss was
                intervals={n: dict(ci95=list(res[n].ci95) if res[n].ci95 else None, stderr=res[n].stderr,
