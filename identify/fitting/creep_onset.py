@@ -23,40 +23,51 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["BRANCH_RATIO", "CREEP_MARGIN", "creep_onset_mask", "creep_onsets", "onset_text"]
+__all__ = ["BRANCH_RATIO", "CREEP_MARGIN", "creep_onset_mask", "creep_onsets", "onset_text",
+           "threshold_stop_times"]
 
 CREEP_MARGIN = 0.1
 BRANCH_RATIO = 3.0
 _LISTED = 3  # slips a report names; the rest are counted
 
 
-def creep_onset_mask(arcs, A: np.ndarray, Y: np.ndarray | None = None, margin: float = CREEP_MARGIN) -> np.ndarray:
-    """Per arc (columns of ``A``, :class:`identify.fitting.arcs.ArcFunctions` inputs):
-    whether a stick threshold ``margin`` lower or higher changes its stop time by more
-    than :data:`BRANCH_RATIO` times (its speed's dip near the threshold). ``Y``: the arcs'
-    outputs at ``A`` if known. Arcs without the stick option (threshold 0: they stop at
-    a reversal) and arcs that cannot be integrated are False."""
+def threshold_stop_times(arcs, A: np.ndarray, Y: np.ndarray | None = None,
+                         margin: float = CREEP_MARGIN) -> np.ndarray:
+    """Per arc (columns of ``A``, :class:`identify.fitting.arcs.ArcFunctions` inputs), its
+    stop time (ms) at its stick threshold, ``margin`` lower and ``margin`` higher (3 × n;
+    NaN for arcs without the stick option, threshold 0, which stop at a reversal).
+    ``Y``: the arcs' outputs at ``A`` if known."""
     n = A.shape[1]
-    out = np.zeros(n, bool)
+    T = np.full((3, n), np.nan)
     iv = arcs.index.get("v_stick")
     if not n or iv is None:
-        return out
+        return T
     vs = A[iv]
-    armed = np.isfinite(vs) & (vs > 0)
-    if not armed.any():
-        return out
-    cols = np.nonzero(armed)[0]
+    cols = np.nonzero(np.isfinite(vs) & (vs > 0))[0]
+    if not cols.size:
+        return T
     base = A[:, cols]
-    T = [(arcs.evaluate(base) if Y is None else Y[:, cols])[2]]
-    for sign in (-1.0, 1.0):
+    T[0, cols] = (arcs.evaluate(base) if Y is None else Y[:, cols])[2]
+    for row, sign in ((1, -1.0), (2, 1.0)):
         moved = base.copy()
         moved[iv] = vs[cols] * (1.0 + sign * margin)
-        T.append(arcs.evaluate(moved)[2])
-    T = np.vstack(T)
+        T[row, cols] = arcs.evaluate(moved)[2]
+    return T
+
+
+def _changes_branch(T: np.ndarray) -> np.ndarray:
+    """Per arc: its stop time changes by more than BRANCH_RATIO times over the three thresholds."""
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.max(T, axis=0) / np.min(T, axis=0)
-    out[cols] = np.all(np.isfinite(T), axis=0) & (np.min(T, axis=0) > 0) & (ratio > BRANCH_RATIO)
-    return out
+        return np.all(np.isfinite(T), axis=0) & (np.min(T, axis=0) > 0) & (ratio > BRANCH_RATIO)
+
+
+def creep_onset_mask(arcs, A: np.ndarray, Y: np.ndarray | None = None, margin: float = CREEP_MARGIN) -> np.ndarray:
+    """Per arc: whether a stick threshold ``margin`` lower or higher changes its stop time
+    by more than :data:`BRANCH_RATIO` times (its speed's dip near the threshold;
+    :func:`threshold_stop_times`). Arcs without the stick option and arcs that cannot be
+    integrated are False."""
+    return _changes_branch(threshold_stop_times(arcs, A, Y, margin))
 
 
 def creep_onsets(prob, w: np.ndarray, margin: float = CREEP_MARGIN) -> list[dict]:
@@ -67,25 +78,15 @@ def creep_onsets(prob, w: np.ndarray, margin: float = CREEP_MARGIN) -> list[dict
     threshold ``margin`` lower and higher."""
     if not prob.E:
         return []
-    A = prob.arc_inputs(w)
-    mask = creep_onset_mask(prob.arcs, A, margin=margin)
-    if not mask.any():
-        return []
-    iv = prob.arcs.index["v_stick"]
+    T = threshold_stop_times(prob.arcs, prob.arc_inputs(w), margin=margin)
     out = []
-    for e in np.nonzero(mask)[0]:
-        col = A[:, e:e + 1]
-        stops = []
-        for factor in (1.0, 1.0 - margin, 1.0 + margin):
-            moved = col.copy()
-            moved[iv] *= factor
-            stops.append(float(prob.arcs.evaluate(moved)[2, 0]))
+    for e in np.nonzero(_changes_branch(T))[0]:
         ri = int(prob.ev_run[e])
         out.append(dict(run=prob.runs[ri].name, slip=int(np.sum(prob.ev_run[:e] == ri)) + 1,
                         trigger_step=int(prob.ev_step[e]), spring_constant_N_per_m=float(prob.ev_k[e]),
                         normal_load_uN=float(prob.ev_Nb[e]) * 1e6, step_frequency_Hz=float(prob.ev_fp[e]),
-                        stop_ms=stops[0], stop_ms_threshold_lower=stops[1], stop_ms_threshold_higher=stops[2],
-                        margin=float(margin)))
+                        stop_ms=float(T[0, e]), stop_ms_threshold_lower=float(T[1, e]),
+                        stop_ms_threshold_higher=float(T[2, e]), margin=float(margin)))
     return out
 
 
